@@ -1,0 +1,138 @@
+"""`georef gnss solve ROVER BASE NAV... --out FILE.pos` and its options."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+from ..errors import GeorefError
+from ..gnss.rtk_options import RtkOptions, read_rtklib_conf
+
+_FREQ = {"l1": 1, "l1+l2": 2, "l1+l2+l5": 3}
+
+
+def parse_position(text: str, what: str) -> tuple[float, float, float]:
+    """'LAT,LON,H' (degrees, m ellipsoidal) or 'X,Y,Z' (ECEF m), told apart by magnitude."""
+    from ..gnss.frames import geodetic_to_ecef_m
+
+    try:
+        vals = [float(v) for v in text.replace(" ", ",").split(",") if v]
+    except ValueError:
+        raise GeorefError(f"{what}: {text!r} is not three numbers") from None
+    if len(vals) != 3:
+        raise GeorefError(f"{what}: expected three numbers (LAT,LON,H or X,Y,Z), got {len(vals)}")
+    if max(abs(v) for v in vals) > 1e5:
+        return tuple(vals)
+    if not (-90 <= vals[0] <= 90 and -180 <= vals[1] <= 360):
+        raise GeorefError(f"{what}: latitude/longitude out of range: {text!r}")
+    xyz = geodetic_to_ecef_m(math.radians(vals[0]), math.radians(vals[1]), vals[2])
+    return tuple(float(v) for v in xyz)
+
+
+def register(sub) -> None:
+    gnss = sub.add_parser("gnss", help="GNSS baseline processing")
+    gsub = gnss.add_subparsers(dest="gnss_command", required=True)
+    p = gsub.add_parser("solve", help="PPK: rover + base + navigation -> trajectory (.pos, .parquet, events)")
+    p.add_argument("rover", help="rover observations: RINEX 2/3 (.obs/.##o/.crx/.##d, gz/Z) or u-blox .ubx")
+    p.add_argument("base", help="base observations (same formats)")
+    p.add_argument("nav", nargs="*", help="navigation files (RINEX nav; UBX logs carry their own)")
+    p.add_argument("--out", required=True, help="output .pos file; .parquet, _events.csv, _summary.json beside it")
+    p.add_argument("--rtklib-conf", help="RTKLIB rnx2rtkp configuration file (shared options are applied)")
+    p.add_argument("--mode", choices=["kinematic", "static", "known-start", "single"])
+    p.add_argument("--freq", choices=list(_FREQ), help="frequencies: l1, l1+l2, l1+l2+l5")
+    p.add_argument("--filter", choices=["forward", "backward", "combined"], help="filter direction (default combined)")
+    p.add_argument("--ar", choices=["off", "continuous", "instantaneous", "fix-and-hold"], help="ambiguity resolution")
+    p.add_argument("--ratio", type=float, help="ratio-test threshold (default 3)")
+    p.add_argument("--elmask", type=float, help="elevation mask, degrees (default 15)")
+    p.add_argument("--snr-mask", type=float, help="C/N0 mask, dB-Hz (default off)")
+    p.add_argument("--navsys", help="systems to use, e.g. G,E,J or G,R (default all)")
+    p.add_argument("--troposphere", choices=["saastamoinen", "hopfield", "off"])
+    p.add_argument("--ionosphere", choices=["broadcast", "off"])
+    p.add_argument("--dynamics", choices=["off", "random-walk", "constant-velocity"])
+    p.add_argument("--base-pos", help="base antenna position: LAT,LON,H (deg, m ellipsoidal) or X,Y,Z (ECEF m); "
+                                      "default: RINEX header")
+    p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
+    p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
+    p.add_argument("--no-base-interpolation", action="store_true", help="use the latest older base epoch only")
+    p.add_argument("--events", help="CSV of camera trigger times (column gps_time_s); default: events in the rover file")
+    p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_solve)
+
+
+def options_from_args(args) -> tuple[RtkOptions, list[str]]:
+    notes: list[str] = []
+    opts = RtkOptions()
+    if args.rtklib_conf:
+        res = read_rtklib_conf(args.rtklib_conf, opts)
+        opts = res.options
+        for key, why in res.unsupported.items():
+            notes.append(f"{args.rtklib_conf}: {key} not applied: {why}")
+        for key in res.unknown:
+            notes.append(f"{args.rtklib_conf}: unknown option {key!r} ignored")
+    changes = {}
+    if args.mode:
+        changes["mode"] = args.mode
+    if args.freq:
+        changes["n_bands"] = _FREQ[args.freq]
+    if args.filter:
+        changes["filter_direction"] = args.filter
+    if args.ar:
+        changes["ar_mode"] = args.ar
+    if args.ratio is not None:
+        changes["ratio_threshold"] = args.ratio
+    if args.elmask is not None:
+        changes["elevation_mask_deg"] = args.elmask
+    if args.snr_mask is not None:
+        changes["snr_mask_dbhz"] = args.snr_mask
+    if args.navsys:
+        systems = tuple(s.strip().upper() for s in args.navsys.split(",") if s.strip())
+        bad = [s for s in systems if s not in ("G", "R", "E", "J", "C")]
+        if bad:
+            raise GeorefError(f"--navsys: unknown system(s) {','.join(bad)}; use G,R,E,J,C")
+        changes["systems"] = systems
+    if args.troposphere:
+        changes["troposphere"] = args.troposphere
+    if args.ionosphere:
+        changes["ionosphere"] = args.ionosphere
+    if args.dynamics:
+        changes["dynamics"] = args.dynamics
+    if args.base_pos:
+        changes["base_position_ecef_m"] = parse_position(args.base_pos, "--base-pos")
+    if args.known_start:
+        changes["known_start_position_ecef_m"] = parse_position(args.known_start, "--known-start")
+        changes.setdefault("mode", "known-start")
+    if args.max_age is not None:
+        changes["max_age_s"] = args.max_age
+    if args.no_base_interpolation:
+        changes["base_interpolation"] = False
+    opts = opts.replace(**changes)
+    try:
+        opts.validate()
+    except ValueError as exc:
+        raise GeorefError(str(exc)) from None
+    return opts, notes
+
+
+def cmd_solve(args) -> int:
+    from ..steps.gnss_solve import run_gnss_solve
+
+    opts, notes = options_from_args(args)
+    for n in notes:
+        print(f"georef: warning: {n}", file=sys.stderr)
+    summary = run_gnss_solve(args.rover, args.base, args.nav, args.out, opts, events_csv=args.events, epsg=args.crs)
+    for w in summary["warnings"]:
+        print(f"georef: warning: {w}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        n = summary["epochs"]
+        print(f"{n} epochs: {summary['fix']} fixed ({100 * summary['fix_rate']:.1f} %), {summary['float']} float, "
+              f"{summary['single']} single")
+        if "events" in summary:
+            ev = summary["events"]
+            print(f"{ev['count']} camera events: {ev['fixed']} on fixed epochs, {ev['without_solution']} without solution "
+                  f"-> {ev['csv']}")
+        print(f"written: {summary['outputs']['pos']}, {summary['outputs']['parquet']}")
+    return 0

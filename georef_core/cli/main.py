@@ -1,0 +1,30 @@
+"""The `georef` command line. Commands are thin: they parse options and call a step function."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..errors import GeorefError
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="georef", description="Directly georeferenced drone surveys.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    from . import gnss_commands, demo_command
+
+    gnss_commands.register(sub)
+    demo_command.register(sub)
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except GeorefError as exc:
+        print(f"georef: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("georef: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""GNSS baseline processing (PPK): readers, orbits, single point positioning, RTK Kalman filter."""

@@ -1,0 +1,118 @@
+"""Base-station observations brought to the rover's epochs.
+
+The base position is known, so its zero-difference residuals (observation minus geometric range,
+satellite clock and atmosphere, all computed at the base's own epoch) change only slowly: the base
+receiver clock (common to all satellites, it cancels in double differences), the atmosphere and the
+broadcast clock error. Following the "simulated master observations" of Eling et al. (2014), the
+residuals are interpolated linearly between the base epochs that bracket a rover epoch (base at 1 Hz,
+rover at 5-10 Hz, base gaps), or taken from the latest older base epoch when interpolation is off or
+a cycle slip lies between the two. The age of corrections is the distance to the nearest base epoch used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .constants import CLIGHT_M_S
+from .corrections import ionosphere_delay_m, troposphere_delay_m
+from .frames import ecef_to_geodetic
+from .navigation import NavigationData
+from .observations import ObservationSet
+from .satellite_geometry import ObservedSatellites, geometric_range_m
+from .spp import az_el_batch
+
+
+@dataclass
+class BaseResiduals:
+    """Base zero-difference residuals (m) on the rover's epochs and satellite list."""
+
+    phase_res_m: np.ndarray     # (E, S, F) NaN where unusable
+    code_res_m: np.ndarray      # (E, S, F)
+    elevation_rad: np.ndarray   # (E, S)
+    slip_into: np.ndarray       # (E, S, F) bool: a base cycle slip occurred before this rover epoch
+    half_cycle: np.ndarray      # (E, S, F) bool: base half-cycle ambiguity unresolved
+    snr_dbhz: np.ndarray        # (E, S, F)
+    age_s: np.ndarray           # (E,) age of corrections; NaN where no base data within max age
+
+
+def base_zero_difference(base: ObservationSet, sats: ObservedSatellites, nav: NavigationData,
+                         base_ecef_m: np.ndarray, lam: np.ndarray, troposphere: str, ionosphere: str,
+                         humidity: float = 0.0):
+    """Residuals phase (m) and code (m) of the base at its own epochs, plus elevation."""
+    n_e = len(base.gps_time_s)
+    rcv = np.broadcast_to(base_ecef_m, (n_e, 3))
+    rng, los = geometric_range_m(np.nan_to_num(sats.position_ecef_m), rcv[:, None, :])
+    az, el, llh = az_el_batch(rcv, los)
+    trop, _ = troposphere_delay_m(troposphere, llh[:, 0:1], llh[:, 2:3], el, humidity)
+    geo = rng - CLIGHT_M_S * sats.clock_bias_s + trop
+    phase = np.full(base.phase_cyc.shape, np.nan)
+    code = np.full(base.code_m.shape, np.nan)
+    for b in range(base.phase_cyc.shape[2]):
+        iono, _ = ionosphere_delay_m(ionosphere, nav, base.gps_time_s[:, None], llh[:, 0:1], llh[:, 1:2], az, el, lam[None, :, b])
+        phase[..., b] = base.phase_cyc[..., b] * lam[None, :, b] - (geo - iono)
+        code[..., b] = base.code_m[..., b] - (geo + iono)
+    invalid = ~sats.valid
+    phase[invalid] = np.nan
+    code[invalid] = np.nan
+    return phase, code, el
+
+
+def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_res: np.ndarray,
+                        code_res: np.ndarray, el: np.ndarray, max_age_s: float, interpolate: bool) -> BaseResiduals:
+    """Residuals of the base (on the base's epochs) mapped to each rover epoch; see module doc."""
+    tb = base.gps_time_s
+    n_r = len(rover_time_s)
+    shape = (n_r,) + phase_res.shape[1:]
+    out_phase = np.full(shape, np.nan)
+    out_code = np.full(shape, np.nan)
+    out_el = np.full(shape[:2], np.nan)
+    slip_into = np.zeros(shape, dtype=bool)
+    half = np.zeros(shape, dtype=bool)
+    snr = np.full(shape, np.nan)
+    age = np.full(n_r, np.nan)
+    if len(tb) == 0:
+        return BaseResiduals(out_phase, out_code, out_el, slip_into, half, snr, age)
+    tol = 1e-3
+    # index of the latest base epoch at or before each rover epoch, and the next one
+    i0 = np.searchsorted(tb, rover_time_s + tol, side="right") - 1
+    i1 = i0 + 1
+    have0 = i0 >= 0
+    have1 = i1 < len(tb)
+    i0c, i1c = np.clip(i0, 0, len(tb) - 1), np.clip(i1, 0, len(tb) - 1)
+    dt0 = np.where(have0, rover_time_s - tb[i0c], np.inf)
+    dt1 = np.where(have1, tb[i1c] - rover_time_s, np.inf)
+    exact = have0 & (np.abs(dt0) <= tol)
+    lli_slip = (base.lli & 1).astype(bool)
+    base_half = (base.lli & 2).astype(bool)
+    for e in range(n_r):
+        if not have0[e] or dt0[e] > max_age_s:
+            # no older epoch: allow a slightly newer base epoch (e.g. rover starts first)
+            if have1[e] and dt1[e] <= min(max_age_s, 1.0):
+                j = i1c[e]
+                out_phase[e], out_code[e], out_el[e] = phase_res[j], code_res[j], el[j]
+                half[e], snr[e] = base_half[j], base.snr_dbhz[j]
+                age[e] = dt1[e]
+            continue
+        j0 = i0c[e]
+        p, c = phase_res[j0].copy(), code_res[j0].copy()
+        a = dt0[e]
+        if not exact[e] and interpolate and have1[e] and (dt0[e] + dt1[e]) <= max_age_s:
+            j1 = i1c[e]
+            w = dt0[e] / (dt0[e] + dt1[e])
+            p1, c1 = phase_res[j1], code_res[j1]
+            ok_p = ~np.isnan(p) & ~np.isnan(p1) & ~lli_slip[j1]
+            ok_c = ~np.isnan(c) & ~np.isnan(c1)
+            p[ok_p] = (1 - w) * p[ok_p] + w * p1[ok_p]
+            c[ok_c] = (1 - w) * c[ok_c] + w * c1[ok_c]
+            a = min(dt0[e], dt1[e])
+        out_phase[e], out_code[e], out_el[e] = p, c, el[j0]
+        half[e], snr[e] = base_half[j0], base.snr_dbhz[j0]
+        age[e] = a
+    # base slips: a slip flagged at base epoch j applies from the first rover epoch that uses epoch j
+    first_use = np.searchsorted(rover_time_s, tb - tol, side="left")
+    for j in np.nonzero(lli_slip.any(axis=(1, 2)))[0]:
+        if first_use[j] < n_r:
+            slip_into[first_use[j]] |= lli_slip[j]
+    return BaseResiduals(out_phase, out_code, out_el, slip_into, half, snr, age)

@@ -1,0 +1,62 @@
+"""Open GNSS files whatever their packing: plain, gzip (.gz), Unix compress (.Z) and Hatanaka (.crx, .##d),
+alone or combined (.crx.gz, .21d.Z). The packing is recognised by content (magic bytes), not only by name."""
+
+from __future__ import annotations
+
+import gzip
+import zlib
+from pathlib import Path
+
+from ..errors import InputFileError
+
+_GZIP_MAGIC = b"\x1f\x8b"
+_COMPRESS_MAGIC = b"\x1f\x9d"
+
+
+def read_bytes(path) -> bytes:
+    """File content with gzip / Unix-compress layers removed (Hatanaka is left as is)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(p, "file not found")
+    if p.is_dir():
+        raise InputFileError(p, "is a folder, expected a file")
+    data = p.read_bytes()
+    for _ in range(3):  # nested packings, e.g. a gzip inside a .Z (rare but seen)
+        if data[:2] == _GZIP_MAGIC:
+            try:
+                data = gzip.decompress(data)
+            except (OSError, EOFError, zlib.error) as exc:
+                raise InputFileError(p, f"gzip data is truncated or corrupt ({exc})") from None
+        elif data[:2] == _COMPRESS_MAGIC:
+            try:
+                import unlzw3
+
+                data = unlzw3.unlzw(data)
+            except Exception as exc:  # unlzw3 raises plain ValueError/IndexError on corrupt input
+                raise InputFileError(p, f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+        else:
+            break
+    return data
+
+
+def is_hatanaka(data: bytes) -> bool:
+    head = data[:200]
+    return b"CRINEX VERS" in head or b"COMPACT RINEX FORMAT" in head
+
+
+def read_text(path) -> str:
+    """Text of a RINEX-like file, decompressing gzip/.Z and Hatanaka as needed."""
+    p = Path(path)
+    data = read_bytes(p)
+    if is_hatanaka(data):
+        try:
+            import hatanaka
+
+            data = hatanaka.decompress(data)
+        except Exception as exc:
+            raise InputFileError(p, f"Hatanaka (CRINEX) data could not be decompressed ({exc})") from None
+    if isinstance(data, bytes):
+        if b"\x00" in data[:4096]:
+            raise InputFileError(p, "binary data where a text (RINEX) file was expected")
+        return data.decode("latin-1")
+    return data

@@ -1,0 +1,538 @@
+"""Broadcast ephemeris selection and evaluation: satellite position, velocity, clock and variance.
+
+Algorithms follow RTKLIB demo5 (ephemeris.c), so that results can be compared with it:
+
+* Kepler orbits (GPS, Galileo, QZSS, BeiDou) per IS-GPS-200 / Galileo OS-SIS-ICD / BDS-SIS-ICD, with
+  the system's own gravitational constant and Earth rotation rate (QZSS uses the GPS values).
+  Kepler's equation is solved by Newton iteration to 1e-13 rad (at most 30 iterations). BeiDou GEO
+  satellites (C01-C05, C59-C63) are computed in their inertial-like frame, rotated by -5 degrees about
+  X and by the Earth rotation since toe about Z.
+* GLONASS: PZ-90 equations of motion (central term, J2, Earth rotation) plus the broadcast luni-solar
+  acceleration, integrated with classical RK4 from toe to t in 60 s steps with a shorter last step,
+  exactly RTKLIB's step pattern. The states on the 60 s grid are cached per record, so an evaluation
+  costs one (short) RK4 step. PZ-90 is used as ITRF (no transformation), as in RTKLIB.
+* Velocities are analytic: the time derivative of the Kepler/GEO formulas (harmonic corrections,
+  inclination rate and node rate included) and the integrated velocity for GLONASS. RTKLIB uses a
+  1 ms forward difference instead (error up to ~3e-4 m/s from the orbit curvature).
+* Clock bias = af0 + af1*dt + af2*dt^2 + relativistic correction -2*sqrt(mu*a)*e*sin(E)/c^2
+  (GLONASS: -tau_n + gamma_n*(t - toe)); no group delay (see group_delay_s). Clock drift is the
+  analytic derivative (relativistic rate included).
+* Variance: RTKLIB's URA mapping (URA metres -> URA index -> upper bound of the index band, squared;
+  Galileo SISA quantised per the Galileo ICD, NAPA -> (500 m)^2; GLONASS accuracy_m^2 = (5 m)^2).
+
+Positions are ECEF at the transmission time given, in the frame of that instant: the caller applies
+the Earth rotation over the signal travel time (Sagnac).
+
+Time precision note: gps_time_s float64 values near 1.4e9 s have a resolution of 2.4e-7 s, which is up
+to ~0.5 mm of along-track satellite motion; results are exact for the time value passed in.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+from dataclasses import dataclass
+from typing import Sequence, Union
+
+import numpy as np
+
+from .constants import (
+    CLIGHT_M_S,
+    FREQ_HZ,
+    GLO_A_M,
+    GLO_J2,
+    GM_BDS_M3_S2,
+    GM_GAL_M3_S2,
+    GM_GLO_M3_S2,
+    GM_GPS_M3_S2,
+    OMEGA_EARTH_BDS_RAD_S,
+    OMEGA_EARTH_GLO_RAD_S,
+    OMEGA_EARTH_RAD_S,
+)
+from .gnss_time import gps_time_s_to_datetime, leap_seconds_at
+from .navigation import GlonassEphemeris, KeplerEphemeris, NavigationData
+
+Ephemeris = Union[KeplerEphemeris, GlonassEphemeris]
+
+# Maximum |t - toe| for an ephemeris to be used, seconds. RTKLIB demo5 seleph()/selgeph():
+# MAXDTOE(+1 s) for GPS/QZSS, MAXDTOE_GAL for Galileo, MAXDTOE_CMP(+1 s) for BeiDou, MAXDTOE_GLO
+# for GLONASS (7200, 7200, 14400, 21600 and 1800 s in rtklib.h; Galileo was 10800 s before 2.4.3).
+MAX_EPHEMERIS_AGE_S: dict[str, float] = {"G": 7201.0, "J": 7201.0, "E": 14400.0, "C": 21601.0, "R": 1800.0}
+
+GLONASS_STEP_S = 60.0
+KEPLER_TOLERANCE_RAD = 1e-13
+KEPLER_MAX_ITERATIONS = 30
+
+_SIN_M5 = math.sin(math.radians(-5.0))
+_COS_M5 = math.cos(math.radians(-5.0))
+_URA_BOUNDS_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0)
+_GAL_NAPA_STD_M = 500.0
+_GAL_FNAV_BITS = 0x102     # data source bits 1 (F/NAV E5a-I) and 8 (clock for E5a,E1)
+_GAL_INAV_BITS = 0x205     # data source bits 0, 2 (I/NAV E1-B, E5b-I) and 9 (clock for E5b,E1)
+
+
+@dataclass
+class SatelliteStates:
+    """Satellite states for N requests (row i answers sat_ids[i] at t[i]).
+
+    position_ecef_m    (N,3) m, ECEF at transmission time (no Earth-rotation correction applied)
+    velocity_ecef_m_s  (N,3) m/s, ECEF (rotating frame)
+    clock_bias_s       (N,)  s, broadcast clock incl. relativistic correction, no group delay
+    clock_drift_s_s    (N,)  s/s
+    variance_m2        (N,)  m^2, orbit+clock variance from URA/SISA
+    valid              (N,)  bool; False: no usable ephemeris (rows hold zeros)
+    iode               (N,)  int: IODE / IODnav / AODE; GLONASS: tb index (15-min slot of the day)
+    """
+
+    position_ecef_m: np.ndarray
+    velocity_ecef_m_s: np.ndarray
+    clock_bias_s: np.ndarray
+    clock_drift_s_s: np.ndarray
+    variance_m2: np.ndarray
+    valid: np.ndarray
+    iode: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> "SatelliteStates":
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n), np.zeros(n),
+                   np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64))
+
+
+# --------------------------------------------------------------------------------------------------
+# record properties
+
+
+def is_galileo_fnav(eph: KeplerEphemeris) -> bool:
+    """True for a Galileo F/NAV record (data source bits 1/8 without I/NAV bits 0/2/9)."""
+    ds = eph.data_source
+    return bool(ds & _GAL_FNAV_BITS) and not ds & _GAL_INAV_BITS
+
+
+def is_healthy(eph: Ephemeris) -> bool:
+    """Broadcast health as RTKLIB demo5 satexclude(): any non-zero health word excludes the satellite,
+    except QZSS where bit 0 is ignored (health & 0xFE). GLONASS: Bn (RINEX health) must be 0."""
+    if isinstance(eph, GlonassEphemeris):
+        return eph.health == 0
+    if eph.sat_id[0] == "J":
+        return (eph.health & 0xFE) == 0
+    return eph.health == 0
+
+
+def _gal_sisa_std_m(sisa_m: float) -> float:
+    """Galileo SISA (m, as in RINEX) quantised to the ICD index grid; NAPA/unknown -> 500 m."""
+    if sisa_m < 0.0 or sisa_m > 6.0:
+        return _GAL_NAPA_STD_M
+    if sisa_m <= 0.49:
+        return round(sisa_m / 0.01) * 0.01
+    if sisa_m <= 0.98:
+        return 0.5 + round((sisa_m - 0.5) / 0.02) * 0.02
+    if sisa_m <= 1.96:
+        return 1.0 + round((sisa_m - 1.0) / 0.04) * 0.04
+    index = round((sisa_m - 2.0) / 0.16)
+    return 2.0 + index * 0.16 if index <= 25 else _GAL_NAPA_STD_M
+
+
+def ephemeris_variance_m2(eph: Ephemeris) -> float:
+    """Orbit + clock variance (m^2) of a broadcast record, RTKLIB's mapping.
+
+    GPS/QZSS/BeiDou: the URA (m) is mapped to the smallest URA index band containing it and the
+    band's upper bound (2.4, 3.4, 4.85, ... 6144 m) is squared. Galileo: SISA quantised, NAPA 500 m.
+    GLONASS: accuracy_m^2 (5 m by default, RTKLIB's ERREPH_GLO)."""
+    if isinstance(eph, GlonassEphemeris):
+        return eph.accuracy_m ** 2
+    if eph.sat_id[0] == "E":
+        return _gal_sisa_std_m(eph.accuracy_m) ** 2
+    for bound in _URA_BOUNDS_M:
+        if bound >= eph.accuracy_m:
+            return bound ** 2
+    return _URA_BOUNDS_M[-1] ** 2
+
+
+def group_delay_s(eph: Ephemeris, band: int) -> float:
+    """Broadcast group delay (s) of the signal on `band` (constants.py band convention).
+
+    Sign convention (IS-GPS-200 20.3.3.3.3.2): the satellite clock seen on the band is
+        dts_band = clock_bias_s - group_delay_s(eph, band)
+    so a single point positioner either models P = rho + c*(dtr - dts_band) + ..., or equivalently
+    corrects the measured pseudorange  P_corr = P - c*group_delay_s(eph, band)  and then uses
+    clock_bias_s (RTKLIB pntpos prange(): P1 - c*TGD).
+
+    GPS/QZSS: TGD * (f_L1/f_band)^2 (L5 approximated with TGD, the CNAV ISCs are not in RINEX 3 LNAV).
+    Galileo: BGD from the record's clock reference: I/NAV clock (E1,E5b): E1 BGD_b, E5b (f1/f7)^2*BGD_b,
+      E5a BGD_b + ((f1/f5)^2 - 1)*BGD_a; F/NAV clock (E1,E5a): E1 BGD_a, E5a (f1/f5)^2*BGD_a,
+      E5b BGD_a + ((f1/f7)^2 - 1)*BGD_b  (BGD_a = BGD(E1,E5a) = tgd_s[0], BGD_b = tgd_s[1]).
+    BeiDou (clock referenced to B3I): B1I TGD1, B2I TGD2, B3I 0.
+    GLONASS: 0 (the RINEX 3.05 L1/L2 delta tau is not stored).
+    """
+    if isinstance(eph, GlonassEphemeris):
+        return 0.0
+    sys = eph.sat_id[0]
+    tgd = eph.tgd_s
+    if sys in ("G", "J"):
+        f = FREQ_HZ[sys]
+        return (f[0] / f[band]) ** 2 * tgd[0]
+    if sys == "E":
+        f = FREQ_HZ["E"]
+        gamma_b = (f[0] / f[1]) ** 2
+        gamma_a = (f[0] / f[2]) ** 2
+        bgd_a, bgd_b = tgd[0], tgd[1]
+        if is_galileo_fnav(eph):
+            return (bgd_a, bgd_a + (gamma_b - 1.0) * bgd_b, gamma_a * bgd_a)[band]
+        return (bgd_b, gamma_b * bgd_b, bgd_b + (gamma_a - 1.0) * bgd_a)[band]
+    if sys == "C":
+        return (tgd[0], tgd[1], 0.0)[band]
+    return 0.0
+
+
+def clock_polynomial_s(eph: Ephemeris, t_sv_gps_s: float) -> float:
+    """Broadcast clock polynomial (s) without relativistic correction, evaluated from a time read on
+    the satellite clock (RTKLIB eph2clk/geph2clk): solves t = t_sv - dts(t) by two fixed-point steps.
+    Use it to turn t_sv = t_rx - P/c into GPS time before calling satellite_states."""
+    if isinstance(eph, GlonassEphemeris):
+        ts = t_sv_gps_s - eph.toe_gps_s
+        t = ts
+        for _ in range(2):
+            t = ts - (-eph.tau_n_s + eph.gamma_n * t)
+        return -eph.tau_n_s + eph.gamma_n * t
+    ts = t_sv_gps_s - eph.toc_gps_s
+    t = ts
+    for _ in range(2):
+        t = ts - (eph.af0_s + eph.af1_s_s * t + eph.af2_s_s2 * t * t)
+    return eph.af0_s + eph.af1_s_s * t + eph.af2_s_s2 * t * t
+
+
+# --------------------------------------------------------------------------------------------------
+# selection
+
+
+class _SortedRecords:
+    """Records of one satellite sorted by toe, with their toes for bisection."""
+
+    __slots__ = ("source", "length", "records", "toes")
+
+    def __init__(self, source: list):
+        self.source = source
+        self.length = len(source)
+        self.records = sorted(source, key=lambda r: r.toe_gps_s)
+        self.toes = [r.toe_gps_s for r in self.records]
+
+
+_SORTED_CACHE: dict[int, _SortedRecords] = {}
+_CACHE_LIMIT = 8192
+
+
+def _sorted_records(records: list) -> _SortedRecords:
+    entry = _SORTED_CACHE.get(id(records))
+    if entry is None or entry.source is not records or entry.length != len(records):
+        if len(_SORTED_CACHE) >= _CACHE_LIMIT:
+            _SORTED_CACHE.clear()
+        entry = _SortedRecords(records)
+        _SORTED_CACHE[id(records)] = entry
+    return entry
+
+
+def select_ephemeris(nav: NavigationData, sat_id: str, t_gps_s: float, *,
+                     require_healthy: bool = True) -> Ephemeris | None:
+    """The broadcast record to use for `sat_id` at `t_gps_s`, or None.
+
+    RTKLIB demo5 rule: the record whose toe is nearest to t with |t - toe| <= MAX_EPHEMERIS_AGE_S
+    (ties: the later record). Galileo: I/NAV records are preferred whenever one is within the limit
+    (their clock refers to E1/E5b, the pair RTKLIB uses); F/NAV only otherwise. As in RTKLIB, a Galileo
+    record with toe >= t (age of data <= 0) is only used when no earlier one is within the limit.
+    Health is tested on the chosen record (RTKLIB satexclude()): an unhealthy nearest record gives
+    None rather than falling back to an older healthy one, which would predate a manoeuvre or
+    anomaly. require_healthy=False returns the nearest record whatever its health.
+    """
+    sys = sat_id[:1]
+    tmax = MAX_EPHEMERIS_AGE_S.get(sys)
+    if tmax is None or not math.isfinite(t_gps_s):
+        return None
+    records = nav.glonass.get(sat_id) if sys == "R" else nav.kepler.get(sat_id)
+    if not records:
+        return None
+    index = _sorted_records(records)
+    toes = index.toes
+    lo = bisect.bisect_left(toes, t_gps_s - tmax - 1.0)
+    hi = bisect.bisect_right(toes, t_gps_s + tmax + 1.0)
+    candidates = [i for i in range(lo, hi) if abs(toes[i] - t_gps_s) <= tmax]
+    if not candidates:
+        return None
+    recs = index.records
+    if sys == "E":
+        inav = [i for i in candidates if not is_galileo_fnav(recs[i])]
+        if inav:
+            candidates = inav
+        past = [i for i in candidates if toes[i] < t_gps_s]
+        if past:
+            candidates = past
+    best, best_dt = candidates[0], math.inf
+    for i in candidates:
+        d = abs(toes[i] - t_gps_s)
+        if d <= best_dt:
+            best, best_dt = i, d
+    chosen = recs[best]
+    if require_healthy and not is_healthy(chosen):
+        return None
+    return chosen
+
+
+# --------------------------------------------------------------------------------------------------
+# evaluation
+
+
+_K_TOE, _K_TOC, _K_AF0, _K_AF1, _K_AF2, _K_A, _K_E, _K_I0, _K_OM0, _K_OMG, _K_M0, _K_DN, _K_IDOT, \
+    _K_OMDOT, _K_CUC, _K_CUS, _K_CRC, _K_CRS, _K_CIC, _K_CIS, _K_TOES, _K_MU, _K_WE, _K_GEO, \
+    _K_VAR, _K_IODE = range(26)
+
+
+def _kepler_row(eph: KeplerEphemeris) -> tuple:
+    sys = eph.sat_id[0]
+    prn = int(eph.sat_id[1:])
+    if sys == "E":
+        mu, we = GM_GAL_M3_S2, OMEGA_EARTH_RAD_S
+    elif sys == "C":
+        mu, we = GM_BDS_M3_S2, OMEGA_EARTH_BDS_RAD_S
+    else:
+        mu, we = GM_GPS_M3_S2, OMEGA_EARTH_RAD_S
+    geo = sys == "C" and (prn <= 5 or prn >= 59)
+    return (eph.toe_gps_s, eph.toc_gps_s, eph.af0_s, eph.af1_s_s, eph.af2_s_s2, eph.sqrt_a * eph.sqrt_a,
+            eph.e, eph.i0_rad, eph.omega0_rad, eph.omega_rad, eph.m0_rad, eph.delta_n_rad_s, eph.idot_rad_s,
+            eph.omega_dot_rad_s, eph.cuc_rad, eph.cus_rad, eph.crc_m, eph.crs_m, eph.cic_rad, eph.cis_rad,
+            eph.toe_sow_s, mu, we, 1.0 if geo else 0.0, ephemeris_variance_m2(eph), float(eph.iode))
+
+
+class _GlonassTrack:
+    """RK4 states of one GLONASS record on the grid toe + k*60 s (k >= 0 and k <= 0), built lazily."""
+
+    __slots__ = ("forward", "backward", "acc")
+
+    def __init__(self, eph: GlonassEphemeris):
+        x0 = tuple(float(v) for v in eph.position_ecef_m) + tuple(float(v) for v in eph.velocity_ecef_m_s)
+        self.forward = [x0]
+        self.backward = [x0]
+        self.acc = tuple(float(v) for v in eph.acceleration_ecef_m_s2)
+
+    def state(self, k: int, sign: float) -> tuple:
+        states = self.forward if sign > 0 else self.backward
+        if len(states) <= k:
+            with _GRID_LOCK:   # the grid is shared: extend it under a lock (threads)
+                while len(states) <= k:
+                    states.append(_rk4_step(states[-1], sign * GLONASS_STEP_S, self.acc))
+        return states[k]
+
+
+# Per-record precomputations keyed by id(record); the record itself is kept in the entry so that the id
+# cannot be reused while cached. Records are treated as immutable once evaluated.
+_ROW_CACHE: dict[int, tuple[object, object]] = {}
+_GRID_LOCK = threading.Lock()
+
+
+def _cached(eph: Ephemeris) -> object:
+    """Per-record precomputation (Kepler parameter row or GLONASS track), cached by identity."""
+    entry = _ROW_CACHE.get(id(eph))
+    if entry is not None and entry[0] is eph:
+        return entry[1]
+    if len(_ROW_CACHE) >= _CACHE_LIMIT:
+        _ROW_CACHE.clear()
+    payload: object = _kepler_row(eph) if isinstance(eph, KeplerEphemeris) else _GlonassTrack(eph)
+    _ROW_CACHE[id(eph)] = (eph, payload)
+    return payload
+
+
+def _glo_derivative(x: tuple, acc: tuple) -> tuple:
+    """PZ-90 equations of motion in the rotating frame: central force, J2, Coriolis/centrifugal and
+    the broadcast luni-solar acceleration (GLONASS ICD 5.1, A.3.1.2)."""
+    px, py, pz, vx, vy, vz = x
+    r2 = px * px + py * py + pz * pz
+    if r2 <= 0.0:
+        return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    r3 = r2 * math.sqrt(r2)
+    w = OMEGA_EARTH_GLO_RAD_S
+    a = 1.5 * GLO_J2 * GM_GLO_M3_S2 * GLO_A_M * GLO_A_M / r2 / r3
+    b = 5.0 * pz * pz / r2
+    c = -GM_GLO_M3_S2 / r3 - a * (1.0 - b)
+    return (vx, vy, vz,
+            (c + w * w) * px + 2.0 * w * vy + acc[0],
+            (c + w * w) * py - 2.0 * w * vx + acc[1],
+            (c - 2.0 * a) * pz + acc[2])
+
+
+def _rk4_step(x: tuple, h: float, acc: tuple) -> tuple:
+    k1 = _glo_derivative(x, acc)
+    k2 = _glo_derivative(tuple(x[i] + k1[i] * h / 2.0 for i in range(6)), acc)
+    k3 = _glo_derivative(tuple(x[i] + k2[i] * h / 2.0 for i in range(6)), acc)
+    k4 = _glo_derivative(tuple(x[i] + k3[i] * h for i in range(6)), acc)
+    return tuple(x[i] + (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) * h / 6.0 for i in range(6))
+
+
+def _glonass_state(eph: GlonassEphemeris, track: _GlonassTrack, t: float) -> tuple[tuple, float, float]:
+    """(state x,y,z,vx,vy,vz), clock bias, clock drift of a GLONASS record at t (RTKLIB step pattern:
+    full 60 s steps while |remaining| >= 60 s, then one shorter step if |remaining| > 1e-9 s)."""
+    dt = t - eph.toe_gps_s
+    sign = -1.0 if dt < 0.0 else 1.0
+    span = abs(dt)
+    k = int(span // GLONASS_STEP_S)
+    rest = span - k * GLONASS_STEP_S
+    if rest < 0.0:
+        k -= 1
+        rest += GLONASS_STEP_S
+    x = track.state(k, sign)
+    if rest > 1e-9:
+        x = _rk4_step(x, sign * rest, track.acc)
+    return x, -eph.tau_n_s + eph.gamma_n * dt, eph.gamma_n
+
+
+def _glonass_tb_index(eph: GlonassEphemeris, leap_s: int | None) -> int:
+    if leap_s is None:
+        leap_s = leap_seconds_at(gps_time_s_to_datetime(eph.toe_gps_s))
+    return int(((eph.toe_gps_s - leap_s + 10800.0) % 86400.0) / 900.0 + 0.5)
+
+
+def _kepler_states(rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Vectorised Kepler evaluation. rows: (N, 26) parameter rows, t: (N,) gps_time_s."""
+    p = rows.T
+    A, e, mu = p[_K_A], p[_K_E], p[_K_MU]
+    tk = t - p[_K_TOE]
+    n = np.sqrt(mu / (A * A * A)) + p[_K_DN]
+    M = p[_K_M0] + n * tk
+    E = M.copy()
+    for _ in range(KEPLER_MAX_ITERATIONS):
+        dE = (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+        E -= dE
+        if not np.any(np.abs(dE) > KEPLER_TOLERANCE_RAD):
+            break
+    sinE, cosE = np.sin(E), np.cos(E)
+    one_m_ecos = 1.0 - e * cosE
+    sq = np.sqrt(1.0 - e * e)
+    phi = np.arctan2(sq * sinE, cosE - e) + p[_K_OMG]
+    s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
+    cus, cuc, crs, crc, cis, cic = p[_K_CUS], p[_K_CUC], p[_K_CRS], p[_K_CRC], p[_K_CIS], p[_K_CIC]
+    u = phi + cus * s2 + cuc * c2
+    r = A * one_m_ecos + crs * s2 + crc * c2
+    inc = p[_K_I0] + p[_K_IDOT] * tk + cis * s2 + cic * c2
+    E_dot = n / one_m_ecos
+    phi_dot = sq * E_dot / one_m_ecos
+    u_dot = phi_dot * (1.0 + 2.0 * (cus * c2 - cuc * s2))
+    r_dot = A * e * sinE * E_dot + 2.0 * phi_dot * (crs * c2 - crc * s2)
+    i_dot = p[_K_IDOT] + 2.0 * phi_dot * (cis * c2 - cic * s2)
+    cu, su = np.cos(u), np.sin(u)
+    xp, yp = r * cu, r * su
+    xp_dot = r_dot * cu - yp * u_dot
+    yp_dot = r_dot * su + xp * u_dot
+
+    we, geo = p[_K_WE], p[_K_GEO] > 0.5
+    node_rate = p[_K_OMDOT] - np.where(geo, 0.0, we)
+    node = p[_K_OM0] + node_rate * tk - we * p[_K_TOES]
+    cO, sO, ci, si = np.cos(node), np.sin(node), np.cos(inc), np.sin(inc)
+    X = xp * cO - yp * ci * sO
+    Y = xp * sO + yp * ci * cO
+    Z = yp * si
+    Xd = xp_dot * cO - yp_dot * ci * sO + yp * si * sO * i_dot - node_rate * Y
+    Yd = xp_dot * sO + yp_dot * ci * cO - yp * si * cO * i_dot + node_rate * X
+    Zd = yp_dot * si + yp * ci * i_dot
+    if np.any(geo):
+        # BeiDou GEO: rotate by -5 deg about X, then by the Earth rotation since toe about Z
+        g = np.nonzero(geo)[0]
+        ang = we[g] * tk[g]
+        ca, sa = np.cos(ang), np.sin(ang)
+        w0, w1, w2 = X[g], Y[g] * _COS_M5 + Z[g] * _SIN_M5, -Y[g] * _SIN_M5 + Z[g] * _COS_M5
+        w0d, w1d, w2d = Xd[g], Yd[g] * _COS_M5 + Zd[g] * _SIN_M5, -Yd[g] * _SIN_M5 + Zd[g] * _COS_M5
+        gx, gy = w0 * ca + w1 * sa, -w0 * sa + w1 * ca
+        X[g], Y[g], Z[g] = gx, gy, w2
+        Xd[g] = w0d * ca + w1d * sa + we[g] * gy
+        Yd[g] = -w0d * sa + w1d * ca - we[g] * gx
+        Zd[g] = w2d
+
+    dtc = t - p[_K_TOC]
+    rel = 2.0 * np.sqrt(mu * A) * e / (CLIGHT_M_S * CLIGHT_M_S)
+    clock = p[_K_AF0] + p[_K_AF1] * dtc + p[_K_AF2] * dtc * dtc - rel * sinE
+    drift = p[_K_AF1] + 2.0 * p[_K_AF2] * dtc - rel * cosE * E_dot
+    pos = np.stack((X, Y, Z), axis=1)
+    vel = np.stack((Xd, Yd, Zd), axis=1)
+    return pos, vel, clock, drift
+
+
+def ephemeris_states(records: Sequence[Ephemeris | None], t_gps_s: np.ndarray | float,
+                     *, leap_seconds: int | None = None) -> SatelliteStates:
+    """States of explicitly given records (no selection, no health test) at times t (gps_time_s).
+
+    records[i] may be None (row invalid). t is a scalar or an (N,) array. leap_seconds (GPS-UTC) is
+    only used for the GLONASS tb index reported in `iode` (default: gnss_time table)."""
+    n = len(records)
+    t = np.broadcast_to(np.asarray(t_gps_s, dtype=float), (n,))
+    out = SatelliteStates.empty(n)
+    kep_idx: list[int] = []
+    kep_rows: list[tuple] = []
+    for i, rec in enumerate(records):
+        if rec is None or not math.isfinite(t[i]):
+            continue
+        payload = _cached(rec)
+        if isinstance(rec, KeplerEphemeris):
+            if rec.sqrt_a > 0.0:
+                kep_idx.append(i)
+                kep_rows.append(payload)  # type: ignore[arg-type]
+            continue
+        if abs(rec.tau_n_s) > 1.0:   # RTKLIB: reject invalid GLONASS clock
+            continue
+        x, clk, drift = _glonass_state(rec, payload, float(t[i]))  # type: ignore[arg-type]
+        out.position_ecef_m[i] = x[:3]
+        out.velocity_ecef_m_s[i] = x[3:]
+        out.clock_bias_s[i] = clk
+        out.clock_drift_s_s[i] = drift
+        out.variance_m2[i] = ephemeris_variance_m2(rec)
+        out.iode[i] = _glonass_tb_index(rec, leap_seconds)
+        out.valid[i] = math.isfinite(x[0]) and (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 0.0
+    if kep_idx:
+        idx = np.asarray(kep_idx)
+        rows = np.asarray(kep_rows, dtype=float)
+        pos, vel, clk, drift = _kepler_states(rows, t[idx])
+        out.position_ecef_m[idx] = pos
+        out.velocity_ecef_m_s[idx] = vel
+        out.clock_bias_s[idx] = clk
+        out.clock_drift_s_s[idx] = drift
+        out.variance_m2[idx] = rows[:, _K_VAR]
+        out.iode[idx] = rows[:, _K_IODE].astype(np.int64)
+        out.valid[idx] = np.isfinite(pos).all(axis=1) & np.isfinite(clk)
+    bad = ~out.valid
+    if bad.any():
+        out.position_ecef_m[bad] = 0.0
+        out.velocity_ecef_m_s[bad] = 0.0
+        out.clock_bias_s[bad] = 0.0
+        out.clock_drift_s_s[bad] = 0.0
+    return out
+
+
+def satellite_states(nav: NavigationData, sat_ids: Sequence[str], t_transmit_gps_s: np.ndarray | float,
+                     *, t_select_gps_s: float | np.ndarray | None = None,
+                     require_healthy: bool = True) -> SatelliteStates:
+    """Positions, velocities, clocks and variances of satellites at their transmission times.
+
+    sat_ids: N satellite ids ('G05', 'R12', 'E11', 'J02', 'C23'); t_transmit_gps_s: (N,) or scalar
+    gps_time_s at which each signal left the satellite (GPS time, i.e. already corrected for the
+    satellite clock). The ephemeris is chosen by select_ephemeris at t_select_gps_s (default: the
+    transmission time; RTKLIB uses the observation epoch, pass it to reproduce RTKLIB exactly at
+    ephemeris changes). Rows without a usable (healthy, unless require_healthy=False) ephemeris have
+    valid=False and zeros elsewhere.
+    """
+    n = len(sat_ids)
+    t = np.broadcast_to(np.asarray(t_transmit_gps_s, dtype=float), (n,))
+    ts = t if t_select_gps_s is None else np.broadcast_to(np.asarray(t_select_gps_s, dtype=float), (n,))
+    records = [select_ephemeris(nav, sat, float(ts[i]), require_healthy=require_healthy)
+               for i, sat in enumerate(sat_ids)]
+    return ephemeris_states(records, t, leap_seconds=nav.leap_seconds)
+
+
+__all__ = [
+    "MAX_EPHEMERIS_AGE_S",
+    "SatelliteStates",
+    "clock_polynomial_s",
+    "ephemeris_states",
+    "ephemeris_variance_m2",
+    "group_delay_s",
+    "is_galileo_fnav",
+    "is_healthy",
+    "satellite_states",
+    "select_ephemeris",
+]
+

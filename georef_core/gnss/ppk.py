@@ -1,0 +1,261 @@
+"""The PPK step: rover + base observations + navigation -> per-epoch trajectory with quality,
+covariance and velocity. Loads, prepares (vectorised precomputation), runs the filter forward,
+backward or both, and combines."""
+
+from __future__ import annotations
+
+import time as _time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputFileError, ProcessingError
+from .base_alignment import align_base_to_rover, base_zero_difference
+from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
+from .corrections import ionosphere_delay_m, troposphere_delay_m
+from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
+from .frames import ecef_to_enu_rotation, ecef_to_geodetic
+from .input_files import load_navigation, load_observations
+from .navigation import NavigationData
+from .observations import ObservationSet, RawObservations, select_bands
+from .rtk_filter import STATUS_FIX, STATUS_FLOAT, STATUS_NONE, STATUS_SINGLE, FilterOutput, PreparedData, RtkFilter
+from .rtk_options import RtkOptions
+from .satellite_geometry import compute_observed_satellites
+from .smoothing import combine
+from .spp import CLOCK_COLUMN, SppResult, solve_spp
+
+
+@dataclass
+class PpkSolution:
+    """Per-epoch PPK solution. time_s is GPS time of the position (receiver time tag minus the
+    receiver clock bias, as RTKLIB reports it)."""
+
+    time_s: np.ndarray
+    receiver_time_s: np.ndarray
+    status: np.ndarray                 # 1 fix, 2 float, 5 single, 0 none
+    position_ecef_m: np.ndarray        # (E, 3)
+    covariance_ecef_m2: np.ndarray     # (E, 3, 3)
+    velocity_ecef_m_s: np.ndarray      # (E, 3)
+    velocity_covariance_m2_s2: np.ndarray
+    n_sats: np.ndarray
+    ratio: np.ndarray
+    age_s: np.ndarray
+    residuals_m: np.ndarray            # (E, S, F) DD phase post-fit residuals
+    sat_ids: list[str]
+    base_position_ecef_m: np.ndarray
+    options: RtkOptions
+    event_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fix_conflicts: np.ndarray | None = None
+    input_paths: dict[str, list[str]] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def fix_rate(self) -> float:
+        valid = self.status != STATUS_NONE
+        return float(np.mean(self.status[valid] == STATUS_FIX)) if valid.any() else 0.0
+
+
+def reindex_satellites(obs: ObservationSet, sat_ids: list[str]) -> ObservationSet:
+    """Observation arrays on another satellite list (missing satellites are NaN)."""
+    pos = {s: i for i, s in enumerate(obs.sat_ids)}
+    src = np.array([pos.get(s, -1) for s in sat_ids])
+    have = src >= 0
+
+    def take(a, fill):
+        out = np.full((a.shape[0], len(sat_ids)) + a.shape[2:], fill, dtype=a.dtype)
+        out[:, have] = a[:, src[have]]
+        return out
+
+    return ObservationSet(obs.source_path, obs.gps_time_s, list(sat_ids), take(obs.code_m, np.nan),
+                          take(obs.phase_cyc, np.nan), take(obs.doppler_hz, np.nan), take(obs.snr_dbhz, np.nan),
+                          take(obs.lli, 0), take(obs.signal_codes, 0), obs.signal_names, obs.header, obs.event_gps_time_s)
+
+
+def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult | None) -> tuple[np.ndarray, list[str]]:
+    notes = []
+    if opts.base_position_ecef_m is not None:
+        pos = np.array(opts.base_position_ecef_m, dtype=float)
+    elif base.header.approx_position_ecef_m is not None:
+        pos = np.array(base.header.approx_position_ecef_m, dtype=float)
+        notes.append(f"base position taken from the RINEX header of {base.source_path}")
+    elif base_spp is not None and base_spp.valid.any():
+        pos = np.nanmedian(base_spp.position_ecef_m[base_spp.valid], axis=0)
+        notes.append(f"{base.source_path}: no base position given nor in the header; using the median single-point "
+                     "position (metre-level: the whole trajectory shifts by the same error). Give --base-pos.")
+    else:
+        raise ProcessingError(f"{base.source_path}: the base position is unknown (not given, not in the header, "
+                              "and no single-point solution); give --base-pos")
+    if any(opts.base_antenna_delta_enu_m):
+        lat, lon, _ = ecef_to_geodetic(pos)
+        pos = pos + ecef_to_enu_rotation(lat, lon).T @ np.asarray(opts.base_antenna_delta_enu_m)
+    return pos, notes
+
+
+def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions):
+    """Vectorised precomputation shared by the forward and backward passes."""
+    timings = {}
+    t0 = _time.perf_counter()
+    rover = select_bands(rover_raw)
+    base = select_bands(base_raw)
+    if len(rover.gps_time_s) == 0:
+        raise ProcessingError(f"{rover.source_path}: no observation epochs")
+    if len(base.gps_time_s) == 0:
+        raise ProcessingError(f"{base.source_path}: no observation epochs")
+    overlap = min(rover.gps_time_s[-1], base.gps_time_s[-1]) - max(rover.gps_time_s[0], base.gps_time_s[0])
+    if overlap < -opts.max_age_s:
+        raise ProcessingError(f"rover {rover.source_path} and base {base.source_path} do not overlap in time "
+                              f"(gap {-overlap:.0f} s)")
+    sat_ids = sorted(set(rover.sat_ids) | set(base.sat_ids))
+    sat_ids = [s for s in sat_ids if s[0] in opts.systems and s not in opts.excluded_sats]
+    common = set(rover.sat_ids) & set(base.sat_ids) & set(sat_ids)
+    if not common:
+        raise ProcessingError(f"rover {rover.source_path} and base {base.source_path} share no satellite of the "
+                              f"selected systems ({','.join(opts.systems)})")
+    rover = reindex_satellites(rover, sat_ids)
+    base = reindex_satellites(base, sat_ids)
+    fcn = {**base.header.glonass_fcn, **rover.header.glonass_fcn, **nav.glonass_fcn()}
+    lam = wavelength_table_m(sat_ids, fcn)
+    timings["select"] = _time.perf_counter() - t0
+
+    t0 = _time.perf_counter()
+    rsat = compute_observed_satellites(rover, nav)
+    bsat = compute_observed_satellites(base, nav)
+    if not rsat.valid.any():
+        raise ProcessingError(f"no navigation data for the epochs of {rover.source_path} "
+                              f"({', '.join(nav.source_paths) or 'no navigation file'}): no satellite position could be computed")
+    timings["orbits"] = _time.perf_counter() - t0
+
+    t0 = _time.perf_counter()
+    spp = solve_spp(rover, rsat, nav, opts, rover.header.approx_position_ecef_m)
+    if not spp.valid.any():
+        raise ProcessingError(f"{rover.source_path}: no epoch has a single-point solution (too few satellites "
+                              "with navigation data above the elevation mask)")
+    base_spp = None
+    if opts.base_position_ecef_m is None and base.header.approx_position_ecef_m is None:
+        base_spp = solve_spp(base, bsat, nav, opts)
+    base_pos, notes = _base_position(base, opts, base_spp)
+    baseline_m = float(np.nanmedian(np.linalg.norm(spp.position_ecef_m[spp.valid] - base_pos, axis=1)))
+    if baseline_m > opts.max_baseline_km * 1e3:
+        raise ProcessingError(f"base {base.source_path} is {baseline_m / 1e3:.0f} km from the rover (limit "
+                              f"{opts.max_baseline_km:.0f} km): wrong base file or wrong base position?")
+    timings["spp"] = _time.perf_counter() - t0
+
+    t0 = _time.perf_counter()
+    dd_iono = opts.ionosphere if opts.dd_ionosphere else "off"
+    b_phase, b_code, b_el = base_zero_difference(base, bsat, nav, base_pos, lam, opts.troposphere, dd_iono,
+                                                 opts.dd_troposphere_humidity)
+    aligned = align_base_to_rover(rover.gps_time_s, base, b_phase, b_code, b_el, opts.max_age_s, opts.base_interpolation)
+    timings["base"] = _time.perf_counter() - t0
+
+    t0 = _time.perf_counter()
+    # rover atmosphere at the single-point position (metre errors there change the delays by < 0.1 mm)
+    spp_pos = spp.position_ecef_m.copy()
+    fill = np.nanmedian(spp_pos[spp.valid], axis=0)
+    spp_pos[~spp.valid] = fill
+    llh = ecef_to_geodetic(spp_pos)
+    el = np.where(spp.valid[:, None], spp.elevation_rad, aligned.elevation_rad)
+    el = np.nan_to_num(el, nan=-1.0)
+    az = spp.azimuth_rad
+    trop, _ = troposphere_delay_m(opts.troposphere, llh[:, 0:1], llh[:, 2:3], np.maximum(el, 0.01),
+                                  opts.dd_troposphere_humidity)
+    iono = np.zeros(rover.code_m.shape)
+    for b in range(N_BANDS):
+        iono[..., b], _ = ionosphere_delay_m(dd_iono, nav, rover.gps_time_s[:, None], llh[:, 0:1], llh[:, 1:2], az,
+                                             np.maximum(el, 0.01), lam[None, :, b])
+    usable = rsat.valid & (el >= np.radians(opts.elevation_mask_deg))
+    if opts.snr_mask_dbhz > 0:
+        usable &= ~(rover.snr_dbhz[..., 0] < opts.snr_mask_dbhz)
+    slips = lli_slips(rover.lli) | aligned.slip_into
+    slips |= geometry_free_slips(rover.phase_cyc, lam, opts.slip_gf_threshold_m)
+    slips |= doppler_slips(rover.phase_cyc, rover.doppler_hz, rover.gps_time_s, opts.slip_doppler_threshold_cyc)
+    slip_cum = np.zeros((len(rover.gps_time_s) + 1,) + slips.shape[1:], dtype=np.int32)
+    np.cumsum(slips, axis=0, out=slip_cum[1:])
+    half = (rover.lli & 2).astype(bool) | aligned.half_cycle
+    data = PreparedData(
+        time_s=rover.gps_time_s, sat_ids=sat_ids, wavelength_m=lam,
+        rover_phase_m=rover.phase_cyc * lam[None], rover_code_m=rover.code_m,
+        rover_sat_pos_ecef_m=rsat.position_ecef_m, rover_sat_clock_m=CLIGHT_M_S * np.nan_to_num(rsat.clock_bias_s),
+        rover_trop_m=trop, rover_iono_m=iono, rover_elevation_rad=el, rover_usable=usable,
+        base_phase_res_m=aligned.phase_res_m, base_code_res_m=aligned.code_res_m, age_s=aligned.age_s,
+        slip_cum=slip_cum, half_cycle=half, spp_position_ecef_m=spp.position_ecef_m,
+        spp_covariance_m2=spp.covariance_ecef_m2, spp_valid=spp.valid, baseline_m=baseline_m)
+    timings["prepare"] = _time.perf_counter() - t0
+    return data, spp, base_pos, notes, timings, rover
+
+
+def _velocities(time_s, pos, cov, status, spp: SppResult):
+    """Central differences of fixed positions (mm/s) where both neighbours are fixed and close in time;
+    Doppler velocities elsewhere."""
+    vel = spp.velocity_ecef_m_s.copy()
+    vcov = spp.velocity_covariance_m2_s2.copy()
+    n = len(time_s)
+    if n >= 3:
+        dt_nominal = float(np.median(np.diff(time_s)))
+        a, b = np.arange(0, n - 2), np.arange(2, n)
+        dt = time_s[b] - time_s[a]
+        ok = (status[a] == STATUS_FIX) & (status[b] == STATUS_FIX) & (dt <= 2.5 * dt_nominal) & (dt > 0)
+        mid = a[ok] + 1
+        vel[mid] = (pos[b[ok]] - pos[a[ok]]) / dt[ok, None]
+        vcov[mid] = (cov[b[ok]] + cov[a[ok]]) / (dt[ok, None, None] ** 2)
+    return vel, vcov
+
+
+def solve(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions,
+          progress=None) -> PpkSolution:
+    opts.validate()
+    data, spp, base_pos, notes, timings, rover = prepare(rover_raw, base_raw, nav, opts)
+    flt = RtkFilter(data, opts)
+    known = np.asarray(opts.known_start_position_ecef_m, dtype=float) if opts.mode == "known-start" else None
+    t0 = _time.perf_counter()
+    conflicts = None
+    if opts.filter_direction == "forward":
+        out = flt.run(backward=False, known_start_ecef_m=known)
+    elif opts.filter_direction == "backward":
+        out = flt.run(backward=True)
+    else:
+        fwd = flt.run(backward=False, known_start_ecef_m=known)
+        back_known = None
+        if known is not None:
+            fixed = np.nonzero(fwd.status == STATUS_FIX)[0]
+            back_known = fwd.position_ecef_m[fixed[-1]] if len(fixed) else None
+        bwd = flt.run(backward=True, known_start_ecef_m=back_known)
+        out, conflicts = combine(fwd, bwd)
+    timings["filter"] = _time.perf_counter() - t0
+    clock_g = spp.clock_bias_m[:, CLOCK_COLUMN["G"]] if spp.clock_bias_m.size else np.zeros(len(data.time_s))
+    clock_g = np.where(spp.valid, clock_g, np.nan)
+    if np.isfinite(clock_g).any():
+        idx = np.arange(len(clock_g))
+        good = np.isfinite(clock_g)
+        clock_g = np.interp(idx, idx[good], clock_g[good])
+    else:
+        clock_g = np.zeros(len(data.time_s))
+    true_time = data.time_s - clock_g / CLIGHT_M_S
+    vel, vcov = _velocities(true_time, out.position_ecef_m, out.covariance_ecef_m2, out.status, spp)
+    sol = PpkSolution(
+        time_s=true_time, receiver_time_s=data.time_s, status=out.status, position_ecef_m=out.position_ecef_m,
+        covariance_ecef_m2=out.covariance_ecef_m2, velocity_ecef_m_s=vel, velocity_covariance_m2_s2=vcov,
+        n_sats=out.n_sats, ratio=out.ratio, age_s=data.age_s, residuals_m=out.residuals_m, sat_ids=data.sat_ids,
+        base_position_ecef_m=base_pos, options=opts, event_time_s=np.asarray(rover.event_gps_time_s, dtype=float),
+        fix_conflicts=conflicts, input_paths={"rover": [rover_raw.source_path], "base": [base_raw.source_path],
+                                              "nav": list(nav.source_paths)},
+        warnings=notes, timings_s=timings)
+    return sol
+
+
+def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSolution:
+    """Load the files (RINEX 2/3 in any packing, or UBX) and solve."""
+    t0 = _time.perf_counter()
+    rover = load_observations(rover_path)
+    base = load_observations(base_path)
+    nav = load_navigation(list(nav_paths)) if nav_paths else NavigationData()
+    for extra in (rover.navigation, base.navigation):
+        if extra is not None:
+            nav = nav.merge(extra)
+    if nav.n_records == 0:
+        raise InputFileError(nav_paths[0] if nav_paths else rover_path, "no navigation data (give a navigation file)")
+    load_s = _time.perf_counter() - t0
+    sol = solve(rover.observations, base.observations, nav, opts)
+    sol.timings_s["load"] = load_s
+    return sol

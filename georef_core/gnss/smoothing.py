@@ -1,0 +1,47 @@
+"""Combination of forward and backward filter passes into one smoothed solution (fixed-interval
+smoother on the two independent estimates, as RTKLIB's 'combined' mode)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .rtk_filter import STATUS_FIX, STATUS_FLOAT, STATUS_NONE, FilterOutput
+
+FIX_CONFLICT_M = 0.05   # two fixed solutions further apart than this disagree on an integer
+
+
+def _rank(status: np.ndarray) -> np.ndarray:
+    """Lower is better: fix 1 < float 2 < single 5; none is worst."""
+    return np.where(status == STATUS_NONE, 99, status)
+
+
+def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndarray]:
+    """Per epoch: the better-quality pass where qualities differ; the covariance-weighted mean where they
+    are equal. Two fixed passes that disagree by more than 5 cm are downgraded to float (one of them
+    holds a wrong integer). Returns the combined output and a per-epoch conflict flag."""
+    n = len(fwd.status)
+    out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
+                       fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy())
+    conflict = np.zeros(n, dtype=bool)
+    rf, rb = _rank(fwd.status), _rank(bwd.status)
+    take_b = rb < rf
+    for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb"):
+        getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
+    both = (rf == rb) & (fwd.status != STATUS_NONE)
+    for e in np.nonzero(both)[0]:
+        qf, qb = fwd.covariance_ecef_m2[e], bwd.covariance_ecef_m2[e]
+        xf, xb = fwd.position_ecef_m[e], bwd.position_ecef_m[e]
+        try:
+            wf, wb = np.linalg.inv(qf), np.linalg.inv(qb)
+            q = np.linalg.inv(wf + wb)
+        except np.linalg.LinAlgError:
+            continue
+        out.position_ecef_m[e] = q @ (wf @ xf + wb @ xb)
+        out.covariance_ecef_m2[e] = q
+        out.ratio[e] = max(fwd.ratio[e], bwd.ratio[e])
+        out.n_sats[e] = max(fwd.n_sats[e], bwd.n_sats[e])
+        if fwd.status[e] == STATUS_FIX and np.linalg.norm(xf - xb) > FIX_CONFLICT_M:
+            conflict[e] = True
+            out.status[e] = STATUS_FLOAT
+            out.covariance_ecef_m2[e] = q + np.outer(xf - xb, xf - xb) / 4.0
+    return out, conflict

@@ -1,0 +1,59 @@
+"""Comparison of two solutions (ours and a reference such as an RTKLIB .pos) epoch by epoch: fix rates,
+and on epochs fixed in both, horizontal/vertical differences in the local ENU frame."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .frames import ecef_to_enu_rotation, geodetic_to_ecef_m
+from .solution_io import PosFile
+
+
+@dataclass
+class Comparison:
+    n_common: int
+    fix_rate: float              # ours, over the common epochs
+    fix_rate_ref: float
+    n_both_fixed: int
+    median_horizontal_m: float
+    median_vertical_m: float
+    max_3d_m: float
+    n_beyond_5cm: int
+
+    def as_dict(self) -> dict:
+        return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+
+
+def _ecef(p: PosFile) -> np.ndarray:
+    return geodetic_to_ecef_m(np.radians(p.lat_deg), np.radians(p.lon_deg), p.height_m)
+
+
+def compare_pos(ours: PosFile, ref: PosFile, time_tolerance_s: float = 0.02) -> Comparison:
+    """Epochs are matched by time; fix rates are computed over the reference's epochs (an epoch we do not
+    output counts as not fixed)."""
+    idx = np.searchsorted(ours.time_s, ref.time_s)
+    idx = np.clip(idx, 0, max(len(ours.time_s) - 1, 0))
+    cand = np.stack([np.clip(idx - 1, 0, None), idx])
+    dt = np.abs(ours.time_s[cand] - ref.time_s[None, :])
+    best = cand[np.argmin(dt, axis=0), np.arange(len(ref.time_s))]
+    matched = np.min(dt, axis=0) <= time_tolerance_s
+    n_ref = len(ref.time_s)
+    ours_fix = np.zeros(n_ref, dtype=bool)
+    ours_fix[matched] = ours.status[best[matched]] == 1
+    ref_fix = ref.status == 1
+    both = ours_fix & ref_fix
+    med_h = med_v = max3 = float("nan")
+    n_bad = 0
+    if both.any():
+        a = _ecef(ours)[best[both]]
+        b = _ecef(ref)[both]
+        lat0, lon0 = np.radians(ref.lat_deg[both][0]), np.radians(ref.lon_deg[both][0])
+        enu = (a - b) @ ecef_to_enu_rotation(lat0, lon0).T
+        h = np.hypot(enu[:, 0], enu[:, 1])
+        d3 = np.linalg.norm(enu, axis=1)
+        med_h, med_v, max3 = float(np.median(h)), float(np.median(np.abs(enu[:, 2]))), float(d3.max())
+        n_bad = int(np.sum(d3 > 0.05))
+    return Comparison(int(matched.sum()), float(ours_fix.mean()) if n_ref else 0.0,
+                      float(ref_fix.mean()) if n_ref else 0.0, int(both.sum()), med_h, med_v, max3, n_bad)

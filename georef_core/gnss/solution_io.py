@@ -1,0 +1,137 @@
+"""Writing and reading PPK solutions: RTKLIB-compatible .pos text (so existing tools read it), and a
+columnar Parquet file for the rest of the pipeline (positions in ECEF, geodetic and an optional EPSG CRS,
+full covariance, velocity, quality), plus the DD residuals in long form."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError
+from .frames import ecef_covariance_to_enu, ecef_to_crs, ecef_to_enu_rotation, ecef_to_geodetic
+from .gnss_time import calendar_to_gps_time_s, gps_time_s_to_datetime
+
+STATUS_NAMES = {0: "none", 1: "fix", 2: "float", 5: "single"}
+
+
+def _signed_sqrt(v):
+    return np.sign(v) * np.sqrt(np.abs(v))
+
+
+def write_pos(path, sol, program: str = "georef") -> None:
+    """RTKLIB .pos, latitude/longitude/height (ellipsoidal), GPST calendar time, ENU standard deviations."""
+    o = sol.options
+    lines = [f"% program   : {program}"]
+    for role in ("rover", "base", "nav"):
+        for p in sol.input_paths.get(role, []):
+            lines.append(f"% inp file  : {p}")
+    valid = np.nonzero(sol.status > 0)[0]
+    if len(valid):
+        t0, t1 = gps_time_s_to_datetime(sol.time_s[valid[0]]), gps_time_s_to_datetime(sol.time_s[valid[-1]])
+        lines.append(f"% obs start : {t0:%Y/%m/%d %H:%M:%S}.{t0.microsecond // 100000:d} GPST")
+        lines.append(f"% obs end   : {t1:%Y/%m/%d %H:%M:%S}.{t1.microsecond // 100000:d} GPST")
+    lines += [f"% pos mode  : {o.mode}", f"% freqs     : {['L1', 'L1+L2', 'L1+L2+L5'][o.n_bands - 1]}",
+              f"% solution  : {o.filter_direction}", f"% elev mask : {o.elevation_mask_deg:.1f} deg",
+              f"% amb res   : {o.ar_mode}", f"% val thres : {o.ratio_threshold:.1f}"]
+    bl = ecef_to_geodetic(sol.base_position_ecef_m)
+    lines.append(f"% ref pos   : {np.degrees(bl[0]):13.9f} {np.degrees(bl[1]):14.9f} {bl[2]:10.4f}")
+    lines.append("%")
+    lines.append("% (lat/lon/height=WGS84/ellipsoidal,Q=1:fix,2:float,3:sbas,4:dgps,5:single,6:ppp,ns=# of satellites)")
+    lines.append("%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
+                 "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio")
+    llh = ecef_to_geodetic(np.nan_to_num(sol.position_ecef_m))
+    for e in valid:
+        dt = gps_time_s_to_datetime(round(sol.time_s[e], 3))
+        lat, lon, h = np.degrees(llh[e, 0]), np.degrees(llh[e, 1]), llh[e, 2]
+        q = ecef_covariance_to_enu(sol.covariance_ecef_m2[e], sol.position_ecef_m[e])
+        sd = np.sqrt(np.abs(np.diag(q)))  # e, n, u
+        sdne, sdeu, sdun = _signed_sqrt(q[1, 0]), _signed_sqrt(q[0, 2]), _signed_sqrt(q[2, 1])
+        age = sol.age_s[e] if np.isfinite(sol.age_s[e]) else 0.0
+        lines.append(f"{dt:%Y/%m/%d %H:%M:%S}.{dt.microsecond // 1000:03d} {lat:14.9f} {lon:14.9f} {h:10.4f} "
+                     f"{int(sol.status[e]):3d} {int(sol.n_sats[e]):3d} {sd[1]:8.4f} {sd[0]:8.4f} {sd[2]:8.4f} "
+                     f"{sdne:8.4f} {sdeu:8.4f} {sdun:8.4f} {age:6.2f} {sol.ratio[e]:6.1f}")
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+@dataclass
+class PosFile:
+    time_s: np.ndarray     # gps_time_s
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    status: np.ndarray
+    n_sats: np.ndarray
+    sd_enu_m: np.ndarray   # (E, 3)
+    ratio: np.ndarray
+
+
+def read_pos(path) -> PosFile:
+    """Read an RTKLIB .pos file written with llh and GPST calendar time (ours or rnx2rtkp's)."""
+    rows = []
+    p = Path(path)
+    for lineno, line in enumerate(p.read_text().splitlines(), 1):
+        if not line.strip() or line.startswith("%"):
+            continue
+        f = line.split()
+        if len(f) < 15:
+            raise InputFileError(p, f"expected 15 columns of an llh .pos record, got {len(f)}", lineno)
+        y, mo, d = (int(v) for v in f[0].split("/"))
+        hh, mm, ss = f[1].split(":")
+        rows.append((y, mo, d, int(hh), int(mm), float(ss), *(float(v) for v in f[2:15])))
+    if not rows:
+        raise InputFileError(p, "no solution records")
+    a = np.array(rows, dtype=float)
+    t = calendar_to_gps_time_s(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5])
+    return PosFile(np.asarray(t), a[:, 6], a[:, 7], a[:, 8], a[:, 9].astype(int), a[:, 10].astype(int),
+                   a[:, [12, 11, 13]], a[:, 18])
+
+
+def solution_table(sol, epsg: int | None = None):
+    """Columnar table (pyarrow.Table) of the solution, units in column names."""
+    import pyarrow as pa
+
+    llh = ecef_to_geodetic(np.nan_to_num(sol.position_ecef_m))
+    cols = {
+        "gps_time_s": sol.time_s, "receiver_time_s": sol.receiver_time_s,
+        "status": sol.status.astype(np.int8), "quality": [STATUS_NAMES.get(int(s), "none") for s in sol.status],
+        "x_ecef_m": sol.position_ecef_m[:, 0], "y_ecef_m": sol.position_ecef_m[:, 1], "z_ecef_m": sol.position_ecef_m[:, 2],
+        "lat_deg": np.degrees(llh[:, 0]), "lon_deg": np.degrees(llh[:, 1]), "height_ellipsoid_m": llh[:, 2],
+    }
+    for i, a in enumerate("xyz"):
+        for j, b in enumerate("xyz"):
+            if j >= i:
+                cols[f"cov_{a}{b}_ecef_m2"] = sol.covariance_ecef_m2[:, i, j]
+    enu_sd = np.full((len(sol.time_s), 3), np.nan)
+    vel_enu = np.full((len(sol.time_s), 3), np.nan)
+    for e in np.nonzero(sol.status > 0)[0]:
+        r = ecef_to_enu_rotation(llh[e, 0], llh[e, 1])
+        enu_sd[e] = np.sqrt(np.abs(np.diag(r @ sol.covariance_ecef_m2[e] @ r.T)))
+        vel_enu[e] = r @ sol.velocity_ecef_m_s[e]
+    cols.update({"sd_east_m": enu_sd[:, 0], "sd_north_m": enu_sd[:, 1], "sd_up_m": enu_sd[:, 2]})
+    cols.update({"vx_ecef_m_s": sol.velocity_ecef_m_s[:, 0], "vy_ecef_m_s": sol.velocity_ecef_m_s[:, 1],
+                 "vz_ecef_m_s": sol.velocity_ecef_m_s[:, 2], "v_east_m_s": vel_enu[:, 0], "v_north_m_s": vel_enu[:, 1],
+                 "v_up_m_s": vel_enu[:, 2],
+                 "sd_vel_m_s": np.sqrt(np.abs(np.trace(sol.velocity_covariance_m2_s2, axis1=1, axis2=2)))})
+    cols.update({"n_sats": sol.n_sats, "ratio": sol.ratio, "age_s": sol.age_s})
+    if epsg:
+        proj = ecef_to_crs(np.nan_to_num(sol.position_ecef_m), epsg)
+        cols.update({f"x_epsg{epsg}": proj[:, 0], f"y_epsg{epsg}": proj[:, 1], f"z_epsg{epsg}": proj[:, 2]})
+    return pa.table(cols)
+
+
+def residual_table(sol):
+    """Long-form DD phase residuals: gps_time_s, sat, band, residual_m."""
+    import pyarrow as pa
+
+    e_i, s_i, b_i = np.nonzero(np.isfinite(sol.residuals_m))
+    return pa.table({"gps_time_s": sol.time_s[e_i], "sat": [sol.sat_ids[s] for s in s_i],
+                     "band": b_i.astype(np.int8), "residual_m": sol.residuals_m[e_i, s_i, b_i]})
+
+
+def write_parquet(path, sol, epsg: int | None = None) -> None:
+    import pyarrow.parquet as pq
+
+    pq.write_table(solution_table(sol, epsg), path)
+    pq.write_table(residual_table(sol), str(Path(path).with_suffix("")) + "_residuals.parquet")

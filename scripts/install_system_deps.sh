@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# System packages Georef needs beyond Python wheels (Debian). Idempotent; does nothing when all are present.
+set -euo pipefail
+need=()
+ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || need+=(libusb-1.0-0)   # open3d
+if [ ${#need[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}"
+  else
+    echo "Please install these Debian packages: ${need[*]} (sudo apt-get install ${need[*]})" >&2
+  fi
+fi
