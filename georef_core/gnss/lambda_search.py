@@ -375,6 +375,7 @@ def mlambda_search(
     n_candidates: int = 2,
     ordering: Ordering = "sorted",
     max_nodes: int = DEFAULT_MAX_NODES,
+    engine: Literal["compiled", "python"] = "compiled",
 ) -> LambdaResult:
     """Integer least-squares estimate of the ambiguities with the MLAMBDA method.
 
@@ -386,6 +387,9 @@ def mlambda_search(
             variance, LAPACK factorisation; default, fastest), "min-pivot" (MLAMBDA minimum
             pivoting) or "none". The result does not depend on it.
         max_nodes: bound on the search-tree size; beyond it SearchLimitError is raised.
+        engine: "compiled" (numba kernels of lambda_kernels.py: full reduction with an explicit Z,
+            RTKLIB-style search; ~50x faster at n = 60) or "python" (the lazy MLAMBDA reduction and
+            Schnorr-Euchner search of this module, kept as the reference implementation).
 
     Returns:
         LambdaResult with candidates (m, n) int64 best first, their squared norms and the
@@ -410,6 +414,8 @@ def mlambda_search(
     dl = d.tolist()
     if not min(dl) > _SINGULAR_RTOL * max(q.diagonal().tolist()):
         raise _not_pd(f"smallest conditional variance {min(dl):.3e}")
+    if engine == "compiled":
+        return _search_compiled(a, lmat, d, perm, m, max_nodes)
     rows = [r[:i] for i, r in enumerate(lmat.tolist())]
     a_perm = a.take(perm).tolist()
     a_int = [math.floor(v + 0.5) for v in a_perm]  # integer part, kept out of the search
@@ -430,6 +436,31 @@ def mlambda_search(
     ints = np.array(out, dtype=np.int64)
     norms = np.array([c[0] for c in cands])
     ratio = float(norms[1] / norms[0]) if m >= 2 and norms[0] > 0.0 else float("inf")
+    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio)
+
+
+def _search_compiled(a, lmat, d, perm, m, max_nodes) -> LambdaResult:
+    from .lambda_kernels import reduce_ltdl, search_best
+
+    n = a.size
+    a_perm = a.take(perm)
+    a_int = np.floor(a_perm + 0.5)
+    lc = np.ascontiguousarray(lmat, dtype=float)
+    dc = np.ascontiguousarray(d, dtype=float)
+    zmat = np.eye(n)
+    reduce_ltdl(lc, dc, zmat)
+    if not np.all(dc > 0.0):
+        raise _not_pd("non-positive conditional variance after reduction")
+    zs = zmat.T @ (a_perm - a_int)
+    zn, norms, found = search_best(lc, dc, zs, m, max_nodes)
+    if found < 0:
+        raise SearchLimitError(f"search exceeded {max_nodes} nodes (weak float solution)")
+    e = zn[:, :found]
+    f = np.rint(np.linalg.solve(zmat.T, e)) + a_int[:, None]
+    ints = np.zeros((found, n), dtype=np.int64)
+    ints[:, perm] = f.T.astype(np.int64)
+    norms = norms[:found].copy()
+    ratio = float(norms[1] / norms[0]) if found >= 2 and norms[0] > 0.0 else float("inf")
     return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio)
 
 
