@@ -85,6 +85,7 @@ class LambdaResult:
     candidates: np.ndarray
     squared_norms: np.ndarray
     ratio: float
+    success_rate: float = float("nan")   # bootstrapped success rate of the decorrelated problem
 
     @property
     def best(self) -> np.ndarray:
@@ -436,7 +437,7 @@ def mlambda_search(
     ints = np.array(out, dtype=np.int64)
     norms = np.array([c[0] for c in cands])
     ratio = float(norms[1] / norms[0]) if m >= 2 and norms[0] > 0.0 else float("inf")
-    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio)
+    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio, success_rate=bootstrap_success_rate(dl))
 
 
 def _search_compiled(a, lmat, d, perm, m, max_nodes) -> LambdaResult:
@@ -461,7 +462,17 @@ def _search_compiled(a, lmat, d, perm, m, max_nodes) -> LambdaResult:
     ints[:, perm] = f.T.astype(np.int64)
     norms = norms[:found].copy()
     ratio = float(norms[1] / norms[0]) if found >= 2 and norms[0] > 0.0 else float("inf")
-    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio)
+    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio, success_rate=bootstrap_success_rate(dc))
+
+
+def bootstrap_success_rate(conditional_variances) -> float:
+    """Probability that integer bootstrapping of the decorrelated problem picks the right integers:
+    prod_i (2 Phi(1 / (2 sigma_i)) - 1), sigma_i^2 the conditional variances (Teunissen 1998). It is a
+    lower bound of the integer least-squares success rate, so a threshold on it is conservative."""
+    from scipy.special import erf
+
+    sig = np.sqrt(np.asarray(conditional_variances, dtype=float))
+    return float(np.prod(erf(1.0 / (2.0 * np.sqrt(2.0) * sig))))
 
 
 def ratio_test_passes(result: LambdaResult, threshold: float) -> bool:

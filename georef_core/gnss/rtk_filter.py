@@ -419,7 +419,10 @@ class RtkFilter:
             states.append(self.amb_index(s, b))
             elevs.append(el[s])
             groups.append((self.sys[s], b))
-        pairs = dd_pairs(states, elevs, groups)
+        # reference of each group: the best-determined ambiguity (a freshly initialised one as reference
+        # would contaminate every DD of its group), then the highest satellite
+        pref = [(-round(float(np.log10(max(p[i, i], 1e-12))), 1), el_s) for i, el_s in zip(states, elevs)]
+        pairs = dd_pairs(states, pref, groups)
         if len(pairs) < o.min_ambiguities_to_fix:
             from .ambiguity_resolution import FixResult
 
@@ -428,7 +431,7 @@ class RtkFilter:
         pair_el = [el_of_state[i] for i, _ in pairs]
         active = np.nonzero(p.diagonal() > 0)[0]
         return resolve(x, p, active, pairs, pair_el, o.ratio_threshold, o.partial_ar, o.partial_ar_max_drop,
-                       o.min_ambiguities_to_fix)
+                       o.min_ambiguities_to_fix, o.min_success_rate)
 
     def _validate_fix(self, e, x_fix, used, lam):
         """Fixed DD phase residuals must stay within 4 sigma. Returns None when they do, else the

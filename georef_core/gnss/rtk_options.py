@@ -26,6 +26,7 @@ class RtkOptions:
     glonass_ar: bool = True
     bds_ar: bool = True
     ratio_threshold: float = 3.0
+    min_success_rate: float = 0.0     # bootstrapped success rate a fix needs besides the ratio test (0 = off)
     ar_min_lock_epochs: int = 0
     ar_elevation_mask_deg: float = 0.0
     ar_min_fix_to_hold: int = 10
