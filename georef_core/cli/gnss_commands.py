@@ -51,7 +51,7 @@ def register(sub) -> None:
     p.add_argument("--ionosphere", choices=["broadcast", "off"])
     p.add_argument("--dynamics", choices=["off", "random-walk", "constant-velocity"])
     p.add_argument("--base-pos", help="base antenna position: LAT,LON,H (deg, m ellipsoidal) or X,Y,Z (ECEF m); "
-                                      "default: RINEX header")
+                                      "default: RINEX header. Write --base-pos=X,Y,Z when the first value is negative")
     p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
     p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
     p.add_argument("--no-base-interpolation", action="store_true", help="use the latest older base epoch only")

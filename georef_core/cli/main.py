@@ -16,6 +16,12 @@ def main(argv: list[str] | None = None) -> int:
     gnss_commands.register(sub)
     demo_command.register(sub)
     args = parser.parse_args(argv)
+    import warnings
+
+    def show_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"georef: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show_warning
     try:
         return int(args.func(args) or 0)
     except GeorefError as exc:

@@ -105,8 +105,10 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
         raise ProcessingError(f"{base.source_path}: no observation epochs")
     overlap = min(rover.gps_time_s[-1], base.gps_time_s[-1]) - max(rover.gps_time_s[0], base.gps_time_s[0])
     if overlap < -opts.max_age_s:
+        gap = -overlap
+        gap_text = f"{gap / 86400:.1f} days" if gap > 86400 else f"{gap:.0f} s"
         raise ProcessingError(f"rover {rover.source_path} and base {base.source_path} do not overlap in time "
-                              f"(gap {-overlap:.0f} s)")
+                              f"(gap {gap_text})")
     sat_ids = sorted(set(rover.sat_ids) | set(base.sat_ids))
     sat_ids = [s for s in sat_ids if s[0] in opts.systems and s not in opts.excluded_sats]
     common = set(rover.sat_ids) & set(base.sat_ids) & set(sat_ids)

@@ -142,8 +142,8 @@ def read_rtklib_conf(path, base: RtkOptions | None = None) -> RtklibConfResult:
             continue
         if "=" not in line:
             raise InputFileError(p, f"expected 'key = value', got {raw.strip()!r}", lineno)
-        key, value = (s.strip() for s in line.split("=", 1))
-        value = value.split()[0] if value.split() else ""
+        key, value_full = (s.strip() for s in line.split("=", 1))
+        value = value_full.split()[0] if value_full.split() else ""
         key_l, val_l = key.lower(), value.lower()
 
         def bad(reason):
@@ -205,7 +205,8 @@ def read_rtklib_conf(path, base: RtkOptions | None = None) -> RtklibConfResult:
             else:
                 res.applied[key] = value
         elif key_l == "pos1-exclsats":
-            setopt("excluded_sats", tuple(value.replace(",", " ").split()))
+            opts.excluded_sats = tuple(value_full.replace(",", " ").split())
+            res.applied[key] = value_full
         elif key_l == "pos1-navsys":
             bits = int(num())
             systems = tuple(s for s, b in NAVSYS_BITS.items() if bits & b and s in ("G", "R", "E", "J", "C"))

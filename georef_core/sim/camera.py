@@ -1,0 +1,173 @@
+"""Pinhole camera with Brown-Conrady distortion (OpenCV's k1, k2, k3, p1, p2), global shutter.
+
+Conventions
+-----------
+* Camera frame: x right in the image, y down in the image, z along the optical axis (forward), as in
+  OpenCV and COLMAP.
+* Pixel coordinates (u, v): OpenCV's, the *centre* of the top-left pixel is (0, 0). COLMAP puts that
+  centre at (0.5, 0.5): its principal point is (cx + 0.5, cy + 0.5) (``CameraModel.colmap_params``).
+* Distortion acts on normalised coordinates ``x = X/Z, y = Y/Z``::
+
+      r2 = x^2 + y^2,  radial = 1 + k1 r2 + k2 r2^2 + k3 r2^3
+      xd = x radial + 2 p1 x y + p2 (r2 + 2 x^2)
+      yd = y radial + p1 (r2 + 2 y^2) + 2 p2 x y
+      u = fx xd + cx,  v = fy yd + cy
+
+  which is OpenCV's model and COLMAP's ``FULL_OPENCV`` with k4 = k5 = k6 = 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+@dataclass
+class CameraOptions:
+    width_px: int = 1600
+    height_px: int = 1200
+    sensor_width_mm: float = 7.04  # pixel pitch = sensor_width_mm / width_px (square pixels)
+    focal_mm: float = 6.16
+    principal_offset: tuple[float, float] = (0.0040, -0.0034)  # (cx, cy) offset from the image centre, in units of width
+    k1: float = -0.118
+    k2: float = 0.082
+    k3: float = -0.012
+    p1: float = 0.00062
+    p2: float = -0.00041
+    make: str = "GeorefSim"
+    model: str = "SimCam-GS"
+
+    def scaled(self, width_px: int, height_px: int) -> "CameraOptions":
+        """The same optics (field of view, distortion) on a sensor with another pixel count."""
+        from dataclasses import replace
+
+        return replace(self, width_px=int(width_px), height_px=int(height_px))
+
+
+@dataclass
+class CameraModel:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    k1: float = 0.0
+    k2: float = 0.0
+    k3: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    pixel_size_mm: float = 0.0044
+    make: str = "GeorefSim"
+    model: str = "SimCam-GS"
+
+    @classmethod
+    def from_options(cls, o: CameraOptions) -> "CameraModel":
+        pix = o.sensor_width_mm / o.width_px
+        f = o.focal_mm / pix
+        return cls(width=o.width_px, height=o.height_px, fx=f, fy=f,
+                   cx=(o.width_px - 1) / 2.0 + o.principal_offset[0] * o.width_px,
+                   cy=(o.height_px - 1) / 2.0 + o.principal_offset[1] * o.width_px,
+                   k1=o.k1, k2=o.k2, k3=o.k3, p1=o.p1, p2=o.p2, pixel_size_mm=pix, make=o.make, model=o.model)
+
+    # ---- derived quantities ------------------------------------------------------------------
+    @property
+    def focal_mm(self) -> float:
+        return self.fx * self.pixel_size_mm
+
+    @property
+    def sensor_size_mm(self) -> tuple[float, float]:
+        return self.width * self.pixel_size_mm, self.height * self.pixel_size_mm
+
+    @property
+    def focal_35mm_equiv(self) -> float:
+        w, h = self.sensor_size_mm
+        return self.focal_mm * math.hypot(36.0, 24.0) / math.hypot(w, h)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def colmap_params(self) -> tuple[str, list[float]]:
+        """COLMAP camera model name and parameter list (COLMAP pixel convention)."""
+        return "FULL_OPENCV", [self.fx, self.fy, self.cx + 0.5, self.cy + 0.5, self.k1, self.k2, self.p1, self.p2,
+                               self.k3, 0.0, 0.0, 0.0]
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        w, h = self.sensor_size_mm
+        model, params = self.colmap_params()
+        d.update({
+            "pixel_convention": "OpenCV: centre of the top-left pixel is (0, 0); COLMAP adds 0.5",
+            "camera_frame": "x right, y down (image), z forward along the optical axis",
+            "distortion_model": "OpenCV/Brown: radial k1,k2,k3 + tangential p1,p2 on normalised coordinates",
+            "focal_mm": self.focal_mm, "sensor_width_mm": w, "sensor_height_mm": h,
+            "focal_35mm_equiv": self.focal_35mm_equiv, "K": self.K.tolist(),
+            "colmap_model": model, "colmap_params": params,
+        })
+        return d
+
+    # ---- distortion -----------------------------------------------------------------------------
+    def distort_normalized(self, x, y):
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
+        return xd, yd
+
+    def undistort_normalized(self, xd, yd, iterations: int = 8):
+        """Inverse of :meth:`distort_normalized` by Newton's method (to ~1e-12 in normalised units)."""
+        xd = np.asarray(xd, dtype=float)
+        yd = np.asarray(yd, dtype=float)
+        x, y = xd.copy(), yd.copy()
+        k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
+        for _ in range(iterations):
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            drad = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+            fx_ = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
+            fy_ = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
+            a = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+            b = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+            c = b
+            d = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+            det = a * d - b * c
+            x = x - (d * fx_ - b * fy_) / det
+            y = y - (-c * fx_ + a * fy_) / det
+        return x, y
+
+    # ---- projection --------------------------------------------------------------------------------
+    def project(self, points_cam) -> np.ndarray:
+        """Camera-frame points (..., 3) to distorted pixel coordinates (..., 2); NaN behind the camera."""
+        p = np.asarray(points_cam, dtype=float)
+        z = p[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = np.where(z > 0, p[..., 0] / z, np.nan)
+            y = np.where(z > 0, p[..., 1] / z, np.nan)
+        xd, yd = self.distort_normalized(x, y)
+        return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=-1)
+
+    def project_world(self, points_world, centre_world, R_cam_to_world) -> np.ndarray:
+        """World points (N, 3) seen from a camera at ``centre_world`` with attitude ``R_cam_to_world``."""
+        pc = (np.asarray(points_world, dtype=float) - np.asarray(centre_world, dtype=float)) @ np.asarray(R_cam_to_world)
+        return self.project(pc)
+
+    def pixel_to_ray(self, u, v) -> np.ndarray:
+        """Unit camera-frame directions through pixel positions (distortion removed)."""
+        x, y = self.undistort_normalized((np.asarray(u, dtype=float) - self.cx) / self.fx,
+                                         (np.asarray(v, dtype=float) - self.cy) / self.fy)
+        d = np.stack([x, y, np.ones_like(x)], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def pixel_rays(self) -> np.ndarray:
+        """(height, width, 3) unit camera-frame directions through every pixel centre."""
+        u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
+        return self.pixel_to_ray(u, v)
+
+    def footprint_m(self, distance_m: float) -> tuple[float, float]:
+        """Ground footprint (width, height) of a nadir image at a distance, ignoring distortion."""
+        return distance_m * self.width / self.fx, distance_m * self.height / self.fy
