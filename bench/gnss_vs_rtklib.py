@@ -1,0 +1,101 @@
+"""Benchmark: our PPK engine against RTKLIB demo5 (pyrtklib5, EX 2.5.0, in this same process) on the same
+files and configurations. Prints, per case: epochs per second for both and the ratio (ours / demo5, > 1
+means we are faster), fix rates, agreement on epochs both fix, and where our time goes.
+
+    python bench/gnss_vs_rtklib.py            # the seven cases of shared/data/README.md
+    python bench/gnss_vs_rtklib.py --all      # every reference case
+    python bench/gnss_vs_rtklib.py --repeat 5 car
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from georef_core.gnss.ppk import solve_files  # noqa: E402
+from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
+from georef_core.gnss.solution_compare import compare_pos  # noqa: E402
+from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402
+from tests.gnss.rtklib_cases import reference_cases  # noqa: E402
+
+DEFAULT = [("cssrlib_2021_265_car_kinematic", "kinematic_l1l2_fwd_fah"),
+           ("cssrlib_2021_265_car_kinematic", "kinematic_l1_fwd_fah"),
+           ("matrtklib_static_1m", "kinematic_l1l2_fwd_fah"),
+           ("matrtklib_static_1m", "kinematic_l1l2_comb_fah"),
+           ("ublox_m8p_20181004_walk", "kinematic_l1_fwd_fah"),
+           ("ublox_m8p_20181004_walk", "kinematic_l1_comb_fah"),
+           ("rtklib_gsi_0759_3040_static", "static_l1l2_fwd_fah")]
+
+
+def run_demo5(conf, files, out) -> float:
+    import pyrtklib5 as rtk
+
+    rtk.resetsysopts()
+    rtk.loadopts(str(conf), rtk.sysopts[0])
+    popt, sopt, fopt = rtk.prcopt_t(), rtk.solopt_t(), rtk.filopt_t()
+    rtk.getsysopts(popt, sopt, fopt)
+    t0 = time.perf_counter()
+    rc = rtk.postpos(rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, [str(f) for f in files], len(files),
+                     str(out), "", "")
+    elapsed = time.perf_counter() - t0
+    if rc != 0:
+        raise RuntimeError(f"demo5 postpos failed ({rc}) on {conf}")
+    return elapsed
+
+
+def run_ours(conf, rover, base, navs, out):
+    opts = read_rtklib_conf(conf).options
+    t0 = time.perf_counter()
+    sol = solve_files(rover, base, navs, opts)
+    write_pos(out, sol)
+    return time.perf_counter() - t0, sol
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("select", nargs="*", help="substrings of dataset/case to run")
+    ap.add_argument("--all", action="store_true")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per engine; the median time is reported")
+    args = ap.parse_args()
+    cases = reference_cases()
+    if not cases:
+        print("shared/data/gnss not found (set GEOREF_SHARED_DATA)")
+        return 1
+    if args.select:
+        cases = [c for c in cases if any(s in f"{c[0]}/{c[1]}" for s in args.select)]
+    elif not args.all:
+        cases = [c for c in cases if (c[0], c[1]) in DEFAULT]
+    # warm-up: numba kernels are compiled (or loaded from cache) on first use
+    tmp = Path(tempfile.mkdtemp())
+    run_ours(cases[0][5], cases[0][2], cases[0][3], cases[0][4], tmp / "warm.pos")
+    print(f"{'dataset/case':52s} {'epochs':>6s} {'demo5 ep/s':>10s} {'ours ep/s':>10s} {'ratio':>6s} "
+          f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s}  our time split (s)")
+    ratios = []
+    for ds, name, rover, base, navs, conf, ref in cases:
+        d_times, o_times = [], []
+        for _ in range(args.repeat):
+            d_times.append(run_demo5(conf, [rover, base, *navs], tmp / "demo5.pos"))
+            t, sol = run_ours(conf, rover, base, navs, tmp / "ours.pos")
+            o_times.append(t)
+        n = len(sol.time_s)
+        td, to = statistics.median(d_times), statistics.median(o_times)
+        c = compare_pos(read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"))
+        split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
+        ratios.append(td / to)
+        print(f"{ds + '/' + name:52s} {n:6d} {n / td:10.0f} {n / to:10.0f} {td / to:6.2f} "
+              f"{100 * c.fix_rate_ref:8.1f}% {100 * c.fix_rate:7.1f}% {1000 * c.median_horizontal_m:7.1f} "
+              f"{1000 * c.median_vertical_m:7.1f} {c.n_beyond_5cm:5d}  {split}")
+    print(f"\nspeed ratio ours/demo5 (epochs per second, >1 = faster): median {statistics.median(ratios):.2f}, "
+          f"min {min(ratios):.2f}, max {max(ratios):.2f} over {len(ratios)} cases")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
