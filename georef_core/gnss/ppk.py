@@ -79,7 +79,13 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
         pos = np.array(opts.base_position_ecef_m, dtype=float)
     elif base.header.approx_position_ecef_m is not None:
         pos = np.array(base.header.approx_position_ecef_m, dtype=float)
-        notes.append(f"base position taken from the RINEX header of {base.source_path}")
+        # the header position is the marker; the antenna reference point is ANTENNA: DELTA H/E/N above it
+        h, east, north = (float(v) for v in base.header.antenna_delta_hen_m)
+        if h or east or north:
+            lat, lon, _ = ecef_to_geodetic(pos)
+            pos = pos + ecef_to_enu_rotation(lat, lon).T @ np.array([east, north, h])
+        notes.append(f"base position taken from the RINEX header of {base.source_path}"
+                     + (f" (plus its antenna delta H/E/N {h:.4f}/{east:.4f}/{north:.4f} m)" if h or east or north else ""))
     elif base_spp is not None and base_spp.valid.any():
         pos = np.nanmedian(base_spp.position_ecef_m[base_spp.valid], axis=0)
         notes.append(f"{base.source_path}: no base position given nor in the header; using the median single-point "
