@@ -86,6 +86,7 @@ class RtkFilter:
         self.n_kin = 6 if opts.dynamics == "constant-velocity" else 3
         self.nx = self.n_kin + self.n_s * self.n_f
         self.sys = np.array([s[0] for s in data.sat_ids])
+        self.systems = list(np.unique(self.sys))
         self.ar_allowed = np.array([(s[0] != "R" or opts.glonass_ar) and (s[0] != "C" or opts.bds_ar) for s in data.sat_ids])
 
     def amb_index(self, s, b):
@@ -298,45 +299,49 @@ class RtkFilter:
                     p[i, i] = VAR_KNOWN_AMB_CYC2
 
     def _dd_rows(self, e, obs_ok, code_ok, sd_phase, sd_code, x, los, lam):
+        """Double-difference innovations v, design matrix H and covariance R for phase and code, one block
+        per (band, system, phase|code), reference = highest satellite of the block. row_info describes each
+        row: (kind, satellite, band, reference, (system, band))."""
         d, o = self.d, self.o
         el = d.rover_elevation_rad[e]
         age = float(d.age_s[e])
-        v_list, h_list, sig_list, blocks, phase_rows = [], [], [], [], []
+        v_parts, h_parts, sig_parts, blocks, row_info = [], [], [], [], []
+        n_rows = 0
         for b in range(self.n_f):
-            for sys in np.unique(self.sys):
+            for sys in self.systems:
+                in_sys = self.sys == sys
                 for is_code in (False, True):
-                    ok = (code_ok if is_code else obs_ok)[:, b] & (self.sys == sys)
-                    members = np.nonzero(ok)[0]
+                    members = np.nonzero((code_ok if is_code else obs_ok)[:, b] & in_sys)[0]
                     if len(members) < 2:
                         continue
                     ref = members[np.argmax(el[members])]
                     others = members[members != ref]
                     sig2 = _sd_sigma2(o, self.sys[members], el[members], b, is_code, d.baseline_m, age)
-                    sig_of = dict(zip(members, sig2))
-                    start = len(v_list)
-                    for s in others:
-                        row = np.zeros(self.nx)
-                        row[:3] = -(los[s] - los[ref])
-                        if is_code:
-                            v = sd_code[s, b] - sd_code[ref, b]
-                            phase_rows.append(("code", s, b, ref, (sys, b)))
-                        else:
-                            i, j = self.amb_index(s, b), self.amb_index(ref, b)
-                            v = (sd_phase[s, b] - sd_phase[ref, b]) - (lam[s, b] * x[i] - lam[ref, b] * x[j])
-                            row[i] = lam[s, b]
-                            row[j] = -lam[ref, b]
-                            phase_rows.append(("phase", s, b, ref, (sys, b)))
-                        v_list.append(v)
-                        h_list.append(row)
-                        sig_list.append(sig_of[s])
-                    blocks.append((start, len(v_list), sig_of[ref]))
-        if len(v_list) < 4:
+                    sref = sig2[members == ref][0]
+                    h = np.zeros((len(others), self.nx))
+                    h[:, :3] = -(los[others] - los[ref])
+                    if is_code:
+                        v = sd_code[others, b] - sd_code[ref, b]
+                        kind = "code"
+                    else:
+                        i_o = self.n_kin + others * self.n_f + b
+                        i_r = self.n_kin + ref * self.n_f + b
+                        v = (sd_phase[others, b] - sd_phase[ref, b]) - (lam[others, b] * x[i_o] - lam[ref, b] * x[i_r])
+                        h[np.arange(len(others)), i_o] = lam[others, b]
+                        h[:, i_r] = -lam[ref, b]
+                        kind = "phase"
+                    v_parts.append(v)
+                    h_parts.append(h)
+                    sig_parts.append(sig2[members != ref])
+                    row_info.extend((kind, int(s_), b, int(ref), (sys, b)) for s_ in others)
+                    blocks.append((n_rows, n_rows + len(others), sref))
+                    n_rows += len(others)
+        if n_rows < 4:
             return None
-        n = len(v_list)
-        r = np.diag(np.array(sig_list))
+        r = np.diag(np.concatenate(sig_parts))
         for start, stop, sref in blocks:
             r[start:stop, start:stop] += sref
-        return np.array(v_list), np.array(h_list), r, phase_rows
+        return np.concatenate(v_parts), np.vstack(h_parts), r, row_info
 
     def _measurement_update(self, e, x, p, obs_ok, code_ok, sd_phase, sd_code, los, lam, max_resets: int = 3):
         """EKF update with DD phase and code. Post-fit phase residuals beyond 5 sigma point at a cycle slip
@@ -445,36 +450,35 @@ class RtkFilter:
         return None if z[k] <= 4.0 else where[k]
 
     def _phase_residuals(self, e, pos, xs, used, lam, obs_ok, with_sigma=False):
+        """DD phase residuals (m) at position `pos` with the ambiguities of state `xs`, per satellite and band
+        (NaN for references and unused signals); with_sigma: (residuals, DD sigmas, [(sat, band)])."""
         d, o = self.d, self.o
         n_f = self.n_f
         rng, _ = geometric_range_m(np.nan_to_num(d.rover_sat_pos_ecef_m[e]), pos[None, :])
         geo = rng - d.rover_sat_clock_m[e] + d.rover_trop_m[e]
         sd_phase = d.rover_phase_m[e, :, :n_f] - (geo[:, None] - d.rover_iono_m[e, :, :n_f]) - d.base_phase_res_m[e, :, :n_f]
-        amb = xs[self.n_kin:].reshape(self.n_s, n_f)
-        corr = sd_phase - lam * amb
-        out = np.full((self.n_s, 3), np.nan)
+        corr = sd_phase - lam * xs[self.n_kin:].reshape(self.n_s, n_f)
+        out = np.full((self.n_s, n_f), np.nan)
         el = d.rover_elevation_rad[e]
         vs, sigs, where = [], [], []
+        ok_all = used & obs_ok
         for b in range(n_f):
-            for sys in np.unique(self.sys):
-                members = np.nonzero(used[:, b] & obs_ok[:, b] & (self.sys == sys))[0]
+            for sys in self.systems:
+                members = np.nonzero(ok_all[:, b] & (self.sys == sys))[0]
                 if len(members) < 2:
                     continue
                 ref = members[np.argmax(el[members])]
-                for s in members:
-                    if s != ref:
-                        out[s, b] = corr[s, b] - corr[ref, b]
+                others = members[members != ref]
+                out[others, b] = corr[others, b] - corr[ref, b]
                 if with_sigma:
                     sig2 = _sd_sigma2(o, self.sys[members], el[members], b, False, d.baseline_m, float(d.age_s[e]))
                     sref = sig2[members == ref][0]
-                    for s, s2 in zip(members, sig2):
-                        if s != ref:
-                            vs.append(out[s, b])
-                            sigs.append(np.sqrt(s2 + sref))
-                            where.append((s, b))
+                    vs.append(out[others, b])
+                    sigs.append(np.sqrt(sig2[members != ref] + sref))
+                    where.extend((int(s_), b) for s_ in others)
         if with_sigma:
-            return (np.array(vs), np.array(sigs), where) if vs else None
-        return out[:, :n_f]
+            return (np.concatenate(vs), np.concatenate(sigs), where) if vs else None
+        return out
 
     def _hold(self, x, p, fix, el):
         """Fix-and-hold: the fixed DD ambiguities become observations of the float filter (variance 0.001 cyc^2)."""
