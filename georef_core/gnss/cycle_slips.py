@@ -4,6 +4,8 @@ geometry-free phase combination jump (two bands), and phase change versus integr
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 
@@ -53,7 +55,8 @@ def doppler_slips(phase_cyc: np.ndarray, doppler_hz: np.ndarray, time_s: np.ndar
         p_i = prev[e_i, s_i]
         dt = time_s[e_i] - time_s[p_i]
         d[e_i, s_i] = (ph[e_i, s_i] - ph[p_i, s_i]) + 0.5 * (dp[e_i, s_i] + dp[p_i, s_i]) * dt
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # epochs without any pair: all-NaN rows
             med = np.nanmedian(d, axis=1, keepdims=True)
         res = np.abs(d - med)
         out[..., b] = np.nan_to_num(res, nan=0.0) > threshold_cyc
