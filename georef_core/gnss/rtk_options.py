@@ -33,6 +33,7 @@ class RtkOptions:
     hold_elevation_mask_deg: float = 0.0
     partial_ar: bool = True
     partial_ar_max_drop: int = 4
+    partial_ar_max_float_sigma_m: float = 0.3   # subsets are searched only once the float position is this good
     min_ambiguities_to_fix: int = 4
     outage_reset_epochs: int = 5
     max_age_s: float = 30.0

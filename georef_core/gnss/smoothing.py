@@ -16,8 +16,8 @@ def _rank(status: np.ndarray) -> np.ndarray:
 
 
 def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndarray]:
-    """Per epoch: the better-quality pass where qualities differ; the covariance-weighted mean where they
-    are equal. Two fixed passes that disagree by more than 5 cm are downgraded to float (one of them
+    """Per epoch: the better-quality pass where qualities differ; the covariance-weighted mean of two float
+    passes; the plain mean (covariance not reduced) of two fixed passes. Two fixed passes that disagree by more than 5 cm are downgraded to float (one of them
     holds a wrong integer). Returns the combined output and a per-epoch conflict flag."""
     n = len(fwd.status)
     out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
@@ -36,8 +36,14 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
             q = np.linalg.inv(wf + wb)
         except np.linalg.LinAlgError:
             continue
-        out.position_ecef_m[e] = q @ (wf @ xf + wb @ xb)
-        out.covariance_ecef_m2[e] = q
+        if fwd.status[e] == STATUS_FIX:
+            # two fixed passes with the same integers are the same function of this epoch's data, not two
+            # independent estimates: average them without shrinking the covariance
+            out.position_ecef_m[e] = 0.5 * (xf + xb)
+            out.covariance_ecef_m2[e] = 0.5 * (qf + qb)
+        else:
+            out.position_ecef_m[e] = q @ (wf @ xf + wb @ xb)
+            out.covariance_ecef_m2[e] = q
         out.ratio[e] = max(fwd.ratio[e], bwd.ratio[e])
         out.n_sats[e] = max(fwd.n_sats[e], bwd.n_sats[e])
         if fwd.status[e] == STATUS_FIX and np.linalg.norm(xf - xb) > FIX_CONFLICT_M:

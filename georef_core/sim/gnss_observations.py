@@ -20,7 +20,7 @@ Observation model (per receiver r, satellite s, band b; true reception time t)
 
     P  = rho + c (dtr - dts) + c TGD_b + T + I_b + B_r(sys, b) + MP_P + e_P              (m)
     L  = [rho + c (dtr - dts) + T - I_b + MP_L + e_L] / lambda_b + N_rsb                  (cycles)
-    D  = -[drho/dt + c (ddtr - ddts) + dT/dt - dI_b/dt] / lambda_b + e_D                 (Hz)
+    D  = -[drho/dt + c (ddtr - ddts) + dT/dt - dI_b/dt + dMP_L/dt] / lambda_b + e_D      (Hz)
 
 * ``rho`` is georef_core's geometric range (:func:`~georef_core.gnss.satellite_geometry.geometric_range_m`):
   the satellite at the transmission time ``t - tau`` in the ECEF frame of that instant, ``|x_s - x_r|`` plus the
@@ -57,6 +57,12 @@ blockage by terrain or the airframe (only random outages and the mask), clock ju
 
 Times: RawObservations.gps_time_s are receiver time tags (as in RINEX); SimulatedTruth.true_time_s are GPS times
 of the measurements; event times (camera trigger marks) are true GPS times, as receivers report time marks.
+The navigation file is used (and copied) as it is: the simulated epochs must lie within its records' validity
+(e.g. the MatRTKLIB multi-GNSS file: 2024-06-24 about 07:45-09:15 GPST with GLONASS; the GSI file: 2005-04-02).
+
+Signals: GPS C1C/L1C + C2W/L2W, GLONASS C1C/L1C + C2P/L2P (frequency channel from the navigation file),
+Galileo C1C/L1C + C7Q/L7Q, QZSS C1C/L1C + C2L/L2L, BeiDou C2I/L2I + C7I/L7I (B2I from BDS-2 satellites only),
+each with its D (Doppler) and S (C/N0) observation; or L1 C/A only (u-blox-like, GPS + GLONASS).
 """
 
 from __future__ import annotations
@@ -70,7 +76,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..gnss.atmosphere import klobuchar_delay_m, saastamoinen_zenith_and_slant
-from ..gnss.constants import CLIGHT_M_S, FREQ_HZ, N_BANDS, RINEX_DIGIT_TO_BAND, wavelength_table_m
+from ..gnss.constants import CLIGHT_M_S, FREQ_HZ, N_BANDS, OMEGA_EARTH_RAD_S, RINEX_DIGIT_TO_BAND, wavelength_table_m
 from ..gnss.ephemeris import ephemeris_states, group_delay_s, select_ephemeris
 from ..gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic
 from ..gnss.navigation import NavigationData
@@ -93,7 +99,7 @@ _SELECT_STEP_S = 10.0
 
 # Tracked signals (RINEX 3 frequency digit + attribute) per system.
 GEODETIC_SIGNALS: dict[str, tuple[str, ...]] = {
-    "G": ("1C", "2W"), "R": ("1C", "2C"), "E": ("1C", "7Q"), "J": ("1C", "2L"), "C": ("2I", "7I"),
+    "G": ("1C", "2W"), "R": ("1C", "2P"), "E": ("1C", "7Q"), "J": ("1C", "2L"), "C": ("2I", "7I"),
 }
 UBLOX_L1_SIGNALS: dict[str, tuple[str, ...]] = {"G": ("1C",), "R": ("1C",)}
 
@@ -137,7 +143,8 @@ class ClockOptions:
 @dataclass
 class CycleSlip:
     """A cycle slip from the first epoch whose receiver time tag is >= time_gps_s (to the end of the lock arc).
-    band None: every tracked band (each slips by ``cycles``). flagged=False leaves LLI at 0 (an undetected slip)."""
+    band None: every tracked band (each slips by ``cycles``). flagged=False leaves LLI at 0 (an undetected slip).
+    A slip at an epoch where the satellite is not tracked is ignored (it is not in SimulatedTruth.slips)."""
 
     time_gps_s: float
     sat_id: str
@@ -196,7 +203,7 @@ class ReceiverOptions:
 
     @classmethod
     def geodetic(cls, **kw) -> "ReceiverOptions":
-        """Survey-grade multi-frequency receiver on a good site (GPS L1C/L2W, GLONASS L1C/L2C, Galileo E1C/E5bQ,
+        """Survey-grade multi-frequency receiver on a good site (GPS L1C/L2W, GLONASS L1C/L2P, Galileo E1C/E5bQ,
         QZSS L1C/L2L, BeiDou B1I/B2I)."""
         return cls(**kw)
 
@@ -206,7 +213,7 @@ class ReceiverOptions:
         patch antenna on a drone: noisier code and phase, faster, weaker multipath."""
         base = dict(marker_name="ROVR", receiver_type="U-BLOX SIM", antenna_type="PATCH           NONE",
                     signals=dict(UBLOX_L1_SIGNALS), code_sigma_a_m=0.25, code_sigma_b_m=0.25,
-                    phase_sigma_a_m=0.0015, phase_sigma_b_m=0.0015, doppler_sigma_a_hz=0.05,
+                    phase_sigma_a_m=0.001, phase_sigma_b_m=0.001, doppler_sigma_a_hz=0.05,
                     doppler_sigma_b_hz=0.05, code_multipath_m=0.5, phase_multipath_m=0.003,
                     multipath_period_s=(5.0, 60.0), cn0_zenith_dbhz=47.0, cn0_horizon_dbhz=30.0,
                     snr_resolution_dbhz=1.0, clock=ClockOptions(millisecond_jumps=True))
@@ -225,10 +232,10 @@ class ReceiverOptions:
 
 def _sat_seed(seed: int, tag: int, sat_id: str, extra: int = 0) -> np.random.Generator:
     code = SYSTEM_ORDER.index(sat_id[0]) if sat_id[0] in SYSTEM_ORDER else 9
-    return np.random.default_rng(np.random.SeedSequence([int(seed) & 0x7FFFFFFF, tag, code, int(sat_id[1:]), extra]))
+    return np.random.default_rng(np.random.SeedSequence([abs(int(seed)), tag, code, int(sat_id[1:]), extra]))
 
 
-@dataclass
+@dataclass(eq=False)
 class Environment:
     """The atmosphere and the broadcast-orbit errors of a survey, deterministic for a seed. Receivers simulated
     with the same Environment see the same (spatially correlated) delays; do not give a rover and its base
@@ -252,7 +259,7 @@ class Environment:
     reference_time_s: float | None = None
 
     def __post_init__(self):
-        rng = np.random.default_rng(np.random.SeedSequence([int(self.seed) & 0x7FFFFFFF, 101]))
+        rng = np.random.default_rng(np.random.SeedSequence([abs(int(self.seed)), 101]))
         self._zwd = rng.normal(0.0, 1.0, 4) * np.array([self.zwd_error_m, self.zwd_gradient_m_per_km,
                                                         self.zwd_gradient_m_per_km, self.zwd_drift_m_per_h])
         k = max(int(self.iono_components), 1)
@@ -376,12 +383,15 @@ def lawnmower_trajectory(origin_ecef_m, start_gps_s: float, *, speed_m_s: float 
                          line_length_m: float = 100.0, line_spacing_m: float = 20.0, height_m: float = 40.0,
                          heading_deg: float = 0.0, pattern_offset_enu_m=(15.0, 10.0), static_before_s: float = 20.0,
                          static_after_s: float = 10.0, climb_speed_m_s: float = 2.5, transit_speed_m_s: float = 5.0,
-                         accel_m_s2: float = 1.5, sample_hz: float = 20.0) -> KinematicTrajectory:
+                         accel_m_s2: float = 1.5, smooth_s: float = 0.5,
+                         sample_hz: float = 20.0) -> KinematicTrajectory:
     """A drone survey flight: static on the ground at ``origin`` (the take-off point, antenna phase centre),
     climb, transit to the first line, ``n_lines`` parallel lines at ``speed_m_s`` joined by half-circle turns of
     diameter ``line_spacing_m`` (speed kept through the turns; accelerations ``accel_m_s2`` at both ends),
-    transit back, descend and stay static. Minimum-jerk climbs, transits and descents."""
+    transit back, descend and stay static. Minimum-jerk climbs, transits and descents; the whole path is then
+    smoothed with a Gaussian of ``smooth_s`` (continuous accelerations, corners of the turns slightly cut)."""
     from scipy.interpolate import make_interp_spline
+    from scipy.ndimage import gaussian_filter1d
 
     dt = 1.0 / sample_hz
     h = math.radians(heading_deg)
@@ -455,6 +465,8 @@ def lawnmower_trajectory(origin_ecef_m, start_gps_s: float, *, speed_m_s: float 
     move(top, ground, climb_speed_m_s * 0.8)
     hold(ground, static_after_s)
     enu = np.concatenate(chunks)
+    # a multirotor does not jerk: smooth the accelerations of the piecewise path over ~0.5 s
+    enu = gaussian_filter1d(enu, smooth_s * sample_hz, axis=0, mode="nearest") if smooth_s > 0 else enu
     t = np.arange(len(enu)) * dt
     spline = make_interp_spline(t, enu, k=5)
     return KinematicTrajectory(np.asarray(origin_ecef_m, float).reshape(3).copy(), float(start_gps_s), spline,
@@ -463,11 +475,10 @@ def lawnmower_trajectory(origin_ecef_m, start_gps_s: float, *, speed_m_s: float 
 
 
 def epoch_grid(start_gps_s: float, duration_s: float, rate_hz: float) -> np.ndarray:
-    """Nominal receiver time tags from start (rounded up to the rate) for duration_s, at rate_hz."""
-    step = 1.0 / rate_hz
+    """Nominal receiver time tags, multiples of 1 / rate_hz, within [start, start + duration]."""
     k0 = math.ceil(round(start_gps_s * rate_hz, 6))
-    n = int(math.floor(duration_s * rate_hz + 1e-9)) + 1
-    return (k0 + np.arange(n)) / rate_hz
+    k1 = math.floor(round((start_gps_s + duration_s) * rate_hz, 6))
+    return np.arange(k0, k1 + 1) / rate_hz
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -518,7 +529,8 @@ def _hermite(tq, t0, h, p0, v0, p1, v1):
     s = ((tq - t0) / h)[..., None]
     s2, s3 = s * s, s * s * s
     pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * v0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * h * v1
-    vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * h * v0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * h * v1) / h
+    vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * h * v0 + (-6 * s2 + 6 * s) * p1
+           + (3 * s2 - 2 * s) * h * v1) / h
     return pos, vel
 
 
@@ -797,9 +809,10 @@ def simulate_receiver(nav: NavigationData, position_fn: PositionFn, velocity_fn:
     spos0 = np.nan_to_num(spos)
     svel0 = np.nan_to_num(svel)
     rho, los = geometric_range_m(spos0, rcv)
-    w = 7.2921151467e-5 / CLIGHT_M_S
+    w = OMEGA_EARTH_RAD_S / CLIGHT_M_S      # d/dt of geometric_range_m's Earth-rotation term, and 1 - dtau/dt
     a_term = np.einsum("esk,esk->es", los, svel0) + w * (svel0[..., 0] * rcv[..., 1] - svel0[..., 1] * rcv[..., 0])
-    b_term = -np.einsum("esk,ek->es", los, rvel) + w * (spos0[..., 0] * rvel[:, None, 1] - spos0[..., 1] * rvel[:, None, 0])
+    b_term = -np.einsum("esk,ek->es", los, rvel) \
+        + w * (spos0[..., 0] * rvel[:, None, 1] - spos0[..., 1] * rvel[:, None, 0])
     rho_dot = (a_term + b_term) / (1.0 + a_term / CLIGHT_M_S)
     az, el, llh = _az_el(rpos, los)
 
@@ -840,8 +853,8 @@ def simulate_receiver(nav: NavigationData, position_fn: PositionFn, velocity_fn:
 
     trop, iono1, _ = delays(0.0)
     hstep = 0.5
-    trop_p, iono_p, el_p = delays(hstep)
-    trop_m, iono_m, el_m = delays(-hstep)
+    trop_p, iono_p, _ = delays(hstep)
+    trop_m, iono_m, _ = delays(-hstep)
     trop_rate = (trop_p - trop_m) / (2 * hstep)
     iono_rate1 = (iono_p - iono_m) / (2 * hstep)
     f_ratio2 = (L1_HZ / (CLIGHT_M_S / lam_safe)) ** 2                 # (S, B)
@@ -881,10 +894,11 @@ def simulate_receiver(nav: NavigationData, position_fn: PositionFn, velocity_fn:
             g = _sat_seed(mp_seed, 3, sat, b)
             mp_c, _ = _unit_eval(_unit_process(g, o.multipath_period_s), t_rel)
             mp_p, mp_p_dot = _unit_eval(_unit_process(g, o.multipath_period_s), t_rel)
-            code_err[:, i, b] = qc * (o.code_multipath_m * mp_shape[:, i] * mp_c
-                                      + (o.code_sigma_a_m + o.code_sigma_b_m / sin_el[:, i]) * g_noise.normal(size=n_e))
+            sig_code = o.code_sigma_a_m + o.code_sigma_b_m / sin_el[:, i]
+            sig_phase = o.phase_sigma_a_m + o.phase_sigma_b_m / sin_el[:, i]
+            code_err[:, i, b] = qc * (o.code_multipath_m * mp_shape[:, i] * mp_c + sig_code * g_noise.normal(size=n_e))
             phase_err[:, i, b] = qp * (o.phase_multipath_m * mp_shape[:, i] * mp_p
-                                       + (o.phase_sigma_a_m + o.phase_sigma_b_m / sin_el[:, i]) * g_noise.normal(size=n_e))
+                                       + sig_phase * g_noise.normal(size=n_e))
             # the Doppler sees the slowly varying phase multipath too (its elevation-shape change is neglected)
             mp_phase_rate[:, i, b] = qp * o.phase_multipath_m * mp_shape[:, i] * mp_p_dot
             dop_noise[:, i, b] = (o.doppler_sigma_a_hz + o.doppler_sigma_b_hz / sin_el[:, i]) * g_noise.normal(size=n_e)
@@ -1029,11 +1043,14 @@ def simulate_survey(nav: NavigationData, rover_position_fn: PositionFn, rover_ve
                     rover_epochs_gps_s, base_position_ecef_m, base_epochs_gps_s, *,
                     rover_options: ReceiverOptions | None = None, base_options: ReceiverOptions | None = None,
                     environment: Environment | None = None, seed: int = 0, events_gps_s=None) -> SimulatedSurvey:
-    """A rover on a trajectory and a static base, in one shared environment (bound to the base position)."""
+    """A rover on a trajectory and a static base, in one shared environment (bound to the base position and the
+    base's first epoch), deterministic for ``seed``. Defaults: geodetic receivers; the rover's antenna multipath is
+    that of a drone (weaker, periods 5-60 s), the base's that of a static site (periods 1-10 min).
+    Use ``SimulatedSurvey.sd_ambiguity_cyc`` for the single-difference ambiguity truth."""
     env = environment if environment is not None else Environment(seed=seed)
     base_pos = np.asarray(base_position_ecef_m, float).reshape(3)
     env.bind(base_pos, float(np.min(base_epochs_gps_s)))
-    ss = np.random.SeedSequence([int(seed) & 0x7FFFFFFF, 2024])
+    ss = np.random.SeedSequence([abs(int(seed)), 2024])
     g_rover, g_base = (np.random.default_rng(s) for s in ss.spawn(2))
     bo = base_options or ReceiverOptions(marker_name="BASE")
     ro = rover_options or ReceiverOptions(marker_name="ROVR", multipath_period_s=(5.0, 60.0), code_multipath_m=0.2,
