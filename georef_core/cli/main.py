@@ -12,9 +12,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="georef", description="Directly georeferenced drone surveys.")
     sub = parser.add_subparsers(dest="command", required=True)
     from . import gnss_commands, demo_command
+    from . import simulate_command
 
     gnss_commands.register(sub)
     demo_command.register(sub)
+    simulate_command.register(sub)
     args = parser.parse_args(argv)
     import warnings
 

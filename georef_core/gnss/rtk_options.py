@@ -44,7 +44,7 @@ class RtkOptions:
     # In double differences over short baselines the models' differential delays are what matters:
     # the hydrostatic part is well modelled; the standard atmosphere's wet part and Klobuchar's spatial
     # gradient are guesses below their own error. Defaults follow RTKLIB's relative mode.
-    dd_troposphere_humidity: float = 0.0   # relative humidity used in DD (0 = hydrostatic delay only)
+    dd_troposphere_humidity: float = 0.7   # relative humidity used in DD (0 = hydrostatic delay only, as RTKLIB)
     dd_ionosphere: bool = False            # apply the broadcast ionosphere in double differences too
     # --- cycle slips and outliers
     slip_gf_threshold_m: float = 0.05

@@ -9,7 +9,12 @@ Deterministic from a seed. Entry point: :func:`simulate_site`. Modules:
 * :mod:`.camera` pinhole + Brown distortion camera
 * :mod:`.render` ray-cast rendering (Open3D) and JPEG/EXIF writing
 * :mod:`.truth` truth files
+* :mod:`.gnss_observations` raw GNSS observations (code, phase, Doppler, C/N0) of a rover and a base
+* :mod:`.survey_gnss` the survey's rover/, base/, nav/ RINEX files and GNSS truth (:class:`GnssOptions`);
+  ``data/base.nav`` is the shipped multi-GNSS broadcast navigation file (see ``data/PROVENANCE.txt``)
 * :mod:`.scenario` :func:`simulate_site`, :class:`SimulationOptions`, :class:`SimulationResult`
+
+Command line: ``georef simulate OUT_DIR --seed N`` (= ``python -m georef_core.sim``).
 
 Rendering needs ``open3d`` (``open3d-cpu``), ``Pillow`` and ``piexif``; the DSM needs ``rasterio``.
 The site, flight and truth geometry need only numpy / scipy / pyproj.
@@ -20,9 +25,11 @@ from .flight import CameraEvent, FlightOptions, FlightPlan, Trajectory, plan_fli
 from .geo import SiteFrame, utm_epsg_for
 from .site import Site, SiteOptions, Target, build_site
 from .stockpiles import Cone, Frustum, HipPile, Stockpile, Windrow
+from .survey_gnss import GnssOptions
 
 __all__ = [
-    "CameraEvent", "CameraModel", "CameraOptions", "Cone", "FlightOptions", "FlightPlan", "Frustum", "HipPile",
+    "CameraEvent", "CameraModel", "CameraOptions", "Cone", "FlightOptions", "FlightPlan", "Frustum", "GnssOptions",
+    "HipPile",
     "RenderOptions", "SimulationOptions", "SimulationResult", "Site", "SiteFrame", "SiteOptions", "Stockpile", "Target",
     "TextureOptions", "Trajectory", "Windrow", "build_site", "plan_flight", "simulate_flight", "simulate_site",
     "utm_epsg_for",

@@ -82,7 +82,8 @@ class FlightOptions:
     position_noise_m: float = 0.15  # RMS of the smooth random deviation from the plan (per horizontal axis)
     lever_arm_cam_m: tuple[float, float, float] = (0.0123, -0.1047, 0.2156)
     trigger_delay_s: float = 0.038  # exposure time = trigger (GNSS time mark) + delay
-    start_utc: str = "2024-06-12T09:30:00"  # UTC at the first trajectory sample
+    # UTC at the first trajectory sample; the shipped navigation file covers 08:00-09:15 GPST on 2024-06-24
+    start_utc: str = "2024-06-24T08:10:00"
     knot_rate_hz: float = 10.0  # rate of the trajectory knots (and of truth/trajectory.csv)
 
 

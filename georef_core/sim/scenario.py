@@ -1,13 +1,17 @@
 """One call that simulates a whole survey: :func:`simulate_site`.
 
-Output folder::
+Output folder (laid out like a user's upload, plus the truth)::
 
     images/        IMG_0001.JPG ... (EXIF: UTC exposure time with sub-seconds, focal length, sensor size, GPS)
+    rover/         rover.obs: drone GNSS receiver, RINEX 3.04 (or rover.<yy>o, 2.11), camera time marks as events
+    base/          base.obs: static base station, 1 Hz
+    nav/           base.nav: multi-GNSS broadcast navigation file (shipped with the package)
     gcp/           points.csv (targets in the project CRS, role control/check) + README.md
     events.csv     trigger (GNSS time mark) gps_time_s of every image
-    truth/         ground truth (see georef_core.sim.truth)
-    rover/ base/ nav/   empty, with a README: for the GNSS observation simulator
+    truth/         ground truth (see georef_core.sim.truth and georef_core.sim.survey_gnss)
     README.md
+
+The GNSS files come from :mod:`georef_core.sim.survey_gnss` (``SimulationOptions.gnss``; None: no GNSS files).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from .camera import CameraModel, CameraOptions
 from .flight import CameraEvent, FlightOptions, FlightPlan, Trajectory, gps_time_to_utc, simulate_flight
 from .render import Renderer, RenderOptions, TerrainMesh, exif_bytes, write_jpeg
 from .site import Site, SiteOptions, build_site
+from .survey_gnss import GnssOptions, SurveyGnssResult, simulate_survey_gnss
 from .texture import TextureOptions, generate_texture, sun_vector_enu
 from .truth import write_events_csv, write_gcp_points, write_truth
 
@@ -47,6 +52,7 @@ class SimulationOptions:
     max_texels: float = 1.2e8  # the texel is enlarged if the texture would exceed this
     workers: int = 2  # images rendered concurrently (threads)
     write_images: bool = True
+    gnss: GnssOptions | None = field(default_factory=GnssOptions)  # None: no rover/, base/, nav/ files
 
     @classmethod
     def small(cls, width_px: int = 640, height_px: int = 480, **flight_kw) -> "SimulationOptions":
@@ -75,6 +81,7 @@ class SimulationResult:
     image_paths: list[Path]
     timings_s: dict
     generation_time_s: float
+    gnss: SurveyGnssResult | None = None
 
     @property
     def truth_dir(self) -> Path:
@@ -122,25 +129,36 @@ class _Progress:
             self._bar.close()
 
 
-def _write_readmes(out: Path, site: Site, n_images: int, flight: FlightOptions) -> None:
-    notes = {
-        "rover": "GNSS rover (drone antenna) observations, RINEX, to be simulated from truth/trajectory.csv "
-                 "(antenna phase centre, ECEF) by the GNSS observation simulator. Empty for now.",
-        "base": "GNSS base-station observations, RINEX, to be simulated by the GNSS observation simulator. Empty for now.",
-        "nav": "Broadcast navigation file (RINEX nav) whose satellite geometry the GNSS simulator uses. Empty for now.",
-    }
-    for name, text in notes.items():
-        d = out / name
-        d.mkdir(parents=True, exist_ok=True)
-        (d / "README.md").write_text(f"# {name}/\n\n{text}\n")
+def _write_readmes(out: Path, site: Site, n_images: int, flight: FlightOptions, gnss: SurveyGnssResult | None) -> None:
+    if gnss is None:
+        notes = {
+            "rover": "GNSS rover observations: not simulated (SimulationOptions.gnss = None).",
+            "base": "GNSS base-station observations: not simulated (SimulationOptions.gnss = None).",
+            "nav": "Broadcast navigation file: not simulated (SimulationOptions.gnss = None).",
+        }
+        for name, text in notes.items():
+            d = out / name
+            d.mkdir(parents=True, exist_ok=True)
+            (d / "README.md").write_text(f"# {name}/\n\n{text}\n")
+        gnss_lines = "- `rover/`, `base/`, `nav/`: empty (no GNSS simulated)\n"
+    else:
+        s = gnss.summary
+        gnss_lines = (
+            f"- `rover/`: drone GNSS receiver ({s['receiver']['rover']}), RINEX {s['rinex_version']}, "
+            f"{s['rover']['rate_hz']:g} Hz, camera trigger time marks as event records (flag 5)\n"
+            f"- `base/`: base station ({s['receiver']['base']}), {s['base']['rate_hz']:g} Hz, at the position in its "
+            f"RINEX header\n"
+            f"- `nav/`: broadcast navigation file (GPS, GLONASS, Galileo, QZSS, BeiDou)\n\n"
+            f"PPK: `{s['solve_command']}`\n\n")
     (out / "README.md").write_text(
         "# Simulated drone survey (georef_core.sim)\n\n"
         f"Seed-determined synthetic earthworks site, project CRS EPSG:{site.frame.epsg}, {n_images} images.\n\n"
         "- `images/`: JPEG images with EXIF (exposure time in UTC, focal length, focal-plane resolution, GPS)\n"
         "- `events.csv`: GNSS time marks (trigger gps_time_s) of the images; exposure = trigger + delay\n"
         "- `gcp/points.csv`: ground targets (control / check)\n"
-        "- `truth/`: trajectory, camera poses, intrinsics, lever arm and delay, targets, stockpiles, DSM\n"
-        "- `rover/`, `base/`, `nav/`: reserved for the GNSS observation simulator\n\n"
+        + gnss_lines +
+        "- `truth/`: trajectory, camera poses, intrinsics, lever arm and delay, targets, stockpiles, DSM, "
+        "GNSS truth (`gnss_truth.npz` / `.json`)\n\n"
         f"Lever arm (camera frame, m): {list(flight.lever_arm_cam_m)}; delay: {flight.trigger_delay_s} s.\n")
 
 
@@ -170,6 +188,13 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
     pr.stage("flight")
     traj, events, plan = simulate_flight(site, camera, o.flight, seed)
     tick("flight", t)
+
+    gnss = None
+    if o.gnss is not None:
+        t = time.perf_counter()
+        pr.stage("gnss")
+        gnss = simulate_survey_gnss(out, site, traj, events, o.gnss, seed)
+        tick("gnss", t)
 
     margin = o.coverage_margin_m if o.coverage_margin_m is not None else 0.15 * o.flight.height_m + 3.0
     bounds = plan.coverage_bounds(margin)
@@ -247,7 +272,7 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 extra={"simulation_options": asdict(o), "rendered_bounds_site_m": list(bounds)})
     write_gcp_points(out / "gcp", site, o.gcp_noise_m, seed)
     write_events_csv(out / "events.csv", events)
-    _write_readmes(out, site, len(events), o.flight)
+    _write_readmes(out, site, len(events), o.flight, gnss)
     tick("truth", t)
 
     total = time.perf_counter() - t_all
@@ -255,5 +280,6 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
         parts = ", ".join(f"{k} {v:.1f} s" for k, v in timings.items())
         print(f"simulate_site: {len(events)} images ({camera.width}x{camera.height}) in {total:.1f} s ({parts}) "
               f"-> {out}", file=sys.stderr, flush=True)
-    return SimulationResult(out_dir=out, seed=int(seed), options=o, site=site, camera=camera, plan=plan, trajectory=traj,
-                            events=events, image_paths=image_paths, timings_s=timings, generation_time_s=total)
+    return SimulationResult(out_dir=out, seed=int(seed), options=o, site=site, camera=camera, plan=plan,
+                            trajectory=traj, events=events, image_paths=image_paths, timings_s=timings,
+                            generation_time_s=total, gnss=gnss)

@@ -21,8 +21,10 @@ DEFAULT_PILES = ("cone", "frustum", "windrow", "hip", "slope_cone")
 
 @dataclass
 class SiteOptions:
-    lat_deg: float = 48.85  # site origin (centre), WGS84
-    lon_deg: float = 2.35
+    # site origin (centre), WGS84: near Nagoya, where the shipped broadcast navigation file's satellites are
+    # visible (georef_core/sim/data/base.nav holds only the satellites its receiver there tracked)
+    lat_deg: float = 35.13
+    lon_deg: float = 136.97
     epsg: int | None = None  # project CRS; None: the UTM zone of (lat, lon)
     ground_height_m: float = 80.0  # ellipsoidal height of the ground at the origin (approx.)
     size_m: tuple[float, float] = (160.0, 100.0)  # extent of the work area along grid E and N

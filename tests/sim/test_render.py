@@ -39,8 +39,8 @@ def test_output_layout(small_sim):
     for name in ("trajectory.csv", "camera_poses.json", "intrinsics.json", "lever_arm_delay.json", "targets.csv",
                  "stockpiles.geojson", "dsm.tif", "site.json"):
         assert (out / "truth" / name).is_file(), name
-    for name in ("rover", "base", "nav"):
-        assert (out / name / "README.md").is_file()
+    for name, files in (("rover", ["rover.obs"]), ("base", ["base.obs"]), ("nav", ["base.nav"])):
+        assert sorted(p.name for p in (out / name).iterdir()) == files   # GNSS files only, as a user uploads them
     rows = (out / "events.csv").read_text().splitlines()
     assert rows[0].startswith("image,trigger_gps_time_s") and len(rows) == n + 1
     trig = [float(r.split(",")[1]) for r in rows[1:]]
