@@ -3,31 +3,13 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 
 from ..errors import GeorefError
 from ..gnss.rtk_options import RtkOptions, read_rtklib_conf
+from .arguments import parse_position
 
 _FREQ = {"l1": 1, "l1+l2": 2, "l1+l2+l5": 3}
-
-
-def parse_position(text: str, what: str) -> tuple[float, float, float]:
-    """'LAT,LON,H' (degrees, m ellipsoidal) or 'X,Y,Z' (ECEF m), told apart by magnitude."""
-    from ..gnss.frames import geodetic_to_ecef_m
-
-    try:
-        vals = [float(v) for v in text.replace(" ", ",").split(",") if v]
-    except ValueError:
-        raise GeorefError(f"{what}: {text!r} is not three numbers") from None
-    if len(vals) != 3:
-        raise GeorefError(f"{what}: expected three numbers (LAT,LON,H or X,Y,Z), got {len(vals)}")
-    if max(abs(v) for v in vals) > 1e5:
-        return tuple(vals)
-    if not (-90 <= vals[0] <= 90 and -180 <= vals[1] <= 360):
-        raise GeorefError(f"{what}: latitude/longitude out of range: {text!r}")
-    xyz = geodetic_to_ecef_m(math.radians(vals[0]), math.radians(vals[1]), vals[2])
-    return tuple(float(v) for v in xyz)
 
 
 def register(sub) -> None:

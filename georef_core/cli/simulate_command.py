@@ -12,6 +12,7 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 from ..errors import GeorefError
+from .arguments import parse_three_numbers
 
 STAGES = ("site", "flight", "gnss", "mesh", "texture", "render", "truth")
 
@@ -54,16 +55,6 @@ def register(sub) -> None:
 
 
 # ----------------------------------------------------------------------------------------------------------
-
-
-def _parse_vector(text: str, what: str) -> tuple[float, float, float]:
-    try:
-        vals = [float(v) for v in text.replace(" ", ",").split(",") if v]
-    except ValueError:
-        raise GeorefError(f"{what}: {text!r} is not three numbers") from None
-    if len(vals) != 3:
-        raise GeorefError(f"{what}: expected three numbers X,Y,Z, got {len(vals)}")
-    return (vals[0], vals[1], vals[2])
 
 
 def planned_image_count(options, size_m: tuple[float, float]) -> int:
@@ -142,7 +133,7 @@ def options_from_args(args):
     if args.speed is not None:
         fl["speed_m_s"] = args.speed
     if args.lever_arm is not None:
-        fl["lever_arm_cam_m"] = _parse_vector(args.lever_arm, "--lever-arm")
+        fl["lever_arm_cam_m"] = parse_three_numbers(args.lever_arm, "--lever-arm")
     if args.delay is not None:
         fl["trigger_delay_s"] = args.delay
     if fl:

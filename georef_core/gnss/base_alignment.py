@@ -17,11 +17,10 @@ import numpy as np
 
 from .constants import CLIGHT_M_S
 from .corrections import ionosphere_delay_m, troposphere_delay_m
-from .frames import ecef_to_geodetic
+from .frames import azimuth_elevation_batch
 from .navigation import NavigationData
 from .observations import ObservationSet
 from .satellite_geometry import ObservedSatellites, geometric_range_m
-from .spp import az_el_batch
 
 
 @dataclass
@@ -44,7 +43,7 @@ def base_zero_difference(base: ObservationSet, sats: ObservedSatellites, nav: Na
     n_e = len(base.gps_time_s)
     rcv = np.broadcast_to(base_ecef_m, (n_e, 3))
     rng, los = geometric_range_m(np.nan_to_num(sats.position_ecef_m), rcv[:, None, :])
-    az, el, llh = az_el_batch(rcv, los)
+    az, el, llh = azimuth_elevation_batch(rcv, los)
     trop, _ = troposphere_delay_m(troposphere, llh[:, 0:1], llh[:, 2:3], el, humidity)
     geo = rng - CLIGHT_M_S * sats.clock_bias_s + trop
     phase = np.full(base.phase_cyc.shape, np.nan)

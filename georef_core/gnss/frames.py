@@ -65,6 +65,19 @@ def azimuth_elevation_rad(receiver_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.n
     return az, el
 
 
+def azimuth_elevation_batch(rcv_ecef_m: np.ndarray, los: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Azimuth and elevation (rad) of unit line-of-sight vectors ``los`` (E, S, 3) seen from receivers
+    ``rcv_ecef_m`` (E, 3), one receiver per row; also returns the receivers' geodetic [lat, lon, h] (E, 3)."""
+    llh = ecef_to_geodetic(rcv_ecef_m)
+    lat, lon = llh[:, 0:1], llh[:, 1:2]
+    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    x, y, z = los[..., 0], los[..., 1], los[..., 2]
+    east = -so * x + co * y
+    north = -sl * co * x - sl * so * y + cl * z
+    up = cl * co * x + cl * so * y + sl * z
+    return np.arctan2(east, north) % (2 * np.pi), np.arcsin(np.clip(up, -1.0, 1.0)), llh
+
+
 def ecef_to_crs(ecef_m, epsg: int) -> np.ndarray:
     """ECEF (WGS84, m) to coordinates of any EPSG CRS (e.g. 32633 UTM 33N -> E, N, ellipsoidal h)."""
     from pyproj import Transformer

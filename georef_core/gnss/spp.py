@@ -11,7 +11,7 @@ import numpy as np
 from .constants import CLIGHT_M_S, OMEGA_EARTH_RAD_S, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .ephemeris import group_delay_s, select_ephemeris
-from .frames import ecef_to_geodetic
+from .frames import azimuth_elevation_batch
 from .navigation import NavigationData
 from .observations import ObservationSet
 from .rtk_options import RtkOptions
@@ -36,20 +36,6 @@ class SppResult:
     azimuth_rad: np.ndarray           # (E, S)
     elevation_rad: np.ndarray         # (E, S)
     gdop: np.ndarray                  # (E,)
-
-
-def az_el_batch(rcv_ecef_m: np.ndarray, los: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Azimuth/elevation of line-of-sight unit vectors los (E, S, 3) at receivers (E, 3); returns geodetic too."""
-    llh = ecef_to_geodetic(rcv_ecef_m)
-    lat, lon = llh[:, 0:1], llh[:, 1:2]
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    x, y, z = los[..., 0], los[..., 1], los[..., 2]
-    east = -so * x + co * y
-    north = -sl * co * x - sl * so * y + cl * z
-    up = cl * co * x + cl * so * y + sl * z
-    el = np.arcsin(np.clip(up, -1.0, 1.0))
-    az = np.arctan2(east, north) % (2 * np.pi)
-    return az, el, llh
 
 
 def code_group_delays_m(obs: ObservationSet, nav: NavigationData, band: int = 0) -> np.ndarray:
@@ -97,7 +83,7 @@ def solve_spp(obs: ObservationSet, sats: ObservedSatellites, nav: NavigationData
         for it in range(10):
             rng, los = geometric_range_m(sat_pos, x[:, None, :3])
             located = np.linalg.norm(x[:, :3], axis=1) > 1e6
-            az, el, llh = az_el_batch(np.where(located[:, None], x[:, :3], [6378137.0, 0, 0]), los)
+            az, el, llh = azimuth_elevation_batch(np.where(located[:, None], x[:, :3], [6378137.0, 0, 0]), los)
             mask = used & (located[:, None] & (el >= np.radians(opts.elevation_mask_deg)) | ~located[:, None])
             trop, trop_var = troposphere_delay_m(opts.troposphere, llh[:, 0:1], llh[:, 2:3], el)
             iono, iono_var = ionosphere_delay_m(opts.ionosphere, nav, t_col, llh[:, 0:1], llh[:, 1:2], az, el, lam[None, :, 0])

@@ -78,7 +78,7 @@ import numpy as np
 from ..gnss.atmosphere import klobuchar_delay_m, saastamoinen_zenith_and_slant
 from ..gnss.constants import CLIGHT_M_S, FREQ_HZ, N_BANDS, OMEGA_EARTH_RAD_S, RINEX_DIGIT_TO_BAND, wavelength_table_m
 from ..gnss.ephemeris import ephemeris_states, group_delay_s, select_ephemeris
-from ..gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic
+from ..gnss.frames import azimuth_elevation_batch, ecef_to_enu_rotation, ecef_to_geodetic
 from ..gnss.navigation import NavigationData
 from ..gnss.observations import RawObservations, ReceiverHeader
 from ..gnss.rinex_obs import write_rinex2_obs, write_rinex3_obs
@@ -696,17 +696,6 @@ def _candidate_satellites(nav: NavigationData, systems: Sequence[str]) -> list[s
     return sorted((s for s in sats if s[0] in systems), key=lambda s: (SYSTEM_ORDER.index(s[0]), int(s[1:])))
 
 
-def _az_el(rcv: np.ndarray, los: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    llh = ecef_to_geodetic(rcv)
-    lat, lon = llh[:, 0:1], llh[:, 1:2]
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    x, y, z = los[..., 0], los[..., 1], los[..., 2]
-    east = -so * x + co * y
-    north = -sl * co * x - sl * so * y + cl * z
-    up = cl * co * x + cl * so * y + sl * z
-    return np.arctan2(east, north) % (2 * np.pi), np.arcsin(np.clip(up, -1, 1)), llh
-
-
 def _unit_process(rng: np.random.Generator, periods: tuple[float, float], k: int = 4):
     """Parameters of a unit-RMS sum of k sinusoids with log-uniform periods (see _unit_eval)."""
     p = np.exp(rng.uniform(math.log(periods[0]), math.log(periods[1]), k))
@@ -814,7 +803,7 @@ def simulate_receiver(nav: NavigationData, position_fn: PositionFn, velocity_fn:
     b_term = -np.einsum("esk,ek->es", los, rvel) \
         + w * (spos0[..., 0] * rvel[:, None, 1] - spos0[..., 1] * rvel[:, None, 0])
     rho_dot = (a_term + b_term) / (1.0 + a_term / CLIGHT_M_S)
-    az, el, llh = _az_el(rpos, los)
+    az, el, llh = azimuth_elevation_batch(rpos, los)
 
     # --- tracking: mask, outages, arcs
     mask = np.radians(o.tracking_mask_deg)
@@ -845,7 +834,7 @@ def simulate_receiver(nav: NavigationData, position_fn: PositionFn, velocity_fn:
         sp = spos0 + svel0 * dt
         d = sp - p[:, None, :]
         los_ = d / np.linalg.norm(d, axis=-1, keepdims=True)
-        az_, el_, llh_ = _az_el(p, los_)
+        az_, el_, llh_ = azimuth_elevation_batch(p, los_)
         ta = t_abs + dt
         trop = env.troposphere_m(ta, p, llh_, el_)
         iono1 = env.ionosphere_l1_m(nav, ta, llh_, az_, el_)

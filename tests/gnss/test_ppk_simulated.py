@@ -44,7 +44,7 @@ from georef_core.gnss.rinex_nav import read_rinex_nav
 from georef_core.gnss.rtk_filter import RtkFilter, STATUS_FIX
 from georef_core.gnss.rtk_options import RtkOptions
 from georef_core.gnss.satellite_geometry import compute_observed_satellites, geometric_range_m
-from georef_core.gnss.spp import az_el_batch
+from georef_core.gnss.frames import azimuth_elevation_batch
 from georef_core.sim.gnss_observations import (
     CycleSlip,
     ReceiverOptions,
@@ -183,7 +183,7 @@ def implied_integer_residuals(sol: PpkSolution, sv: SimulatedSurvey, nav, n_band
         c = np.where(have, col, 0)
         rng_r, los = geometric_range_m(np.nan_to_num(rs.position_ecef_m[e]), sol.position_ecef_m[e][None, :])
         rng_b, _ = geometric_range_m(np.nan_to_num(bs.position_ecef_m[j, c]), sv.base_position_ecef_m[None, :])
-        _, el, _ = az_el_batch(sol.position_ecef_m[e][None, :], los[None])
+        _, el, _ = azimuth_elevation_batch(sol.position_ecef_m[e][None, :], los[None])
         el = el[0]
         for band in range(n_bands):
             lam = r.wavelength_m[:, band]
