@@ -5,7 +5,6 @@ backward or both, and combines."""
 from __future__ import annotations
 
 import time as _time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +18,7 @@ from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .input_files import load_navigation, load_observations
 from .navigation import NavigationData
 from .observations import ObservationSet, RawObservations, select_bands
-from .rtk_filter import STATUS_FIX, STATUS_FLOAT, STATUS_NONE, STATUS_SINGLE, FilterOutput, PreparedData, RtkFilter
+from .rtk_filter import STATUS_FIX, STATUS_NONE, PreparedData, RtkFilter
 from .rtk_options import RtkOptions
 from .satellite_geometry import compute_observed_satellites
 from .smoothing import combine
