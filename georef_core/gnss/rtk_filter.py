@@ -359,6 +359,7 @@ class RtkFilter:
         o = self.o
         x0, p0 = x, p
         obs_ok = obs_ok.copy()
+        reset_done: set = set()
         for attempt in range(max_resets + 1):
             rows = self._dd_rows(e, obs_ok, code_ok, sd_phase, sd_code, x0, los, lam)
             if rows is None:
@@ -391,13 +392,18 @@ class RtkFilter:
             if culprit is None:
                 break
             s_c, b_c = culprit
-            # re-initialise that ambiguity in the prior and redo the update
             x0, p0 = x0.copy(), p0.copy()
-            i = self.amb_index(s_c, b_c)
-            self._reset(x0, p0, i)
-            single = np.zeros_like(obs_ok)
-            single[s_c, b_c] = True
-            self._init_biases(x0, p0, single, sd_phase, sd_code, lam, obs_ok)
+            again = np.zeros_like(obs_ok)
+            if culprit in reset_done:
+                # the reference was re-initialised already and most of its group is still offset: the group's
+                # (held) integers cannot be trusted -> re-initialise the whole group (system and band)
+                again[:, b_c] = obs_ok[:, b_c] & (self.sys == self.sys[s_c])
+            else:
+                again[s_c, b_c] = True
+            reset_done.add(culprit)
+            for s_r, b_r in zip(*np.nonzero(again)):
+                self._reset(x0, p0, self.amb_index(s_r, b_r))
+            self._init_biases(x0, p0, again, sd_phase, sd_code, lam, obs_ok)
         phase_rows = [(ri[1], ri[2], ri[3]) if ri[0] == "phase" else None for ri in row_info]
         return x, p, phase_rows
 

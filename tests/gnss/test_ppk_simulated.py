@@ -406,16 +406,6 @@ def test_c_single_frequency_gps_glonass_with_cycle_slips(l1_slips_case):
         assert near.sum() > 10 and err.max() < 0.05, (s, err.max())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "engine: three simultaneous unflagged slips (1, 2, 3 cycles) on the three highest GPS satellites (G13, G05, "
-    "G15) of an L1 GPS+GLONASS rover leave the forward filter FLOAT with a ~0.93 m error and a ~1 cm reported sigma "
-    "(NEES ~1e4) for the remaining 2.5 minutes, never re-fixing (ratio ~1.3). Traced (RtkFilter._reset): at every "
-    "epoch from the slip on, _measurement_update's residual test blames the GPS group's reference G13 (more than "
-    "half of the group's rows are bad) three times in a row - resetting an already reset state - and never G05 or "
-    "G15, whose fix-and-hold ambiguities (variance 0.001 cyc^2) stay wrong. Skipping already-reset states and "
-    "falling back to the worst other satellite was tried: it does not fix this case and made the real u-blox walk "
-    "worse (78 instead of 43 epochs beyond 5 cm of demo5), so it was reverted, and held ambiguities should be released when "
-    "the fix is lost with large residuals. The combined output is right only because the backward pass is fixed."))
 def test_c_forward_filter_recovers_from_simultaneous_unflagged_slips():
     nav, base, t0 = _site("multi")
     tr = _drone_flight(base, t0)
