@@ -24,6 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=float, help="flight height above take-off (m; default 60, small 40)")
     p.add_argument("--speed", type=float, help="ground speed on the lines (m/s; default 5, small 4)")
     p.add_argument("--size", type=float, nargs=2, metavar=("EAST_M", "NORTH_M"), help="work area size (m)")
+    p.add_argument("--crs", type=int, metavar="EPSG", help="projected CRS of the site (default: its UTM zone)")
     p.add_argument("--image-size", type=int, nargs=2, metavar=("W", "H"), help="image size in pixels")
     p.add_argument("--images", type=int, metavar="N",
                    help="about N images: the work area (both sides, aspect ratio kept) is scaled until the planned "
@@ -140,6 +141,17 @@ def options_from_args(args):
         o.flight = replace(o.flight, **fl)
     if args.size is not None:
         o.site = replace(o.site, size_m=(float(args.size[0]), float(args.size[1])))
+    if args.crs is not None:
+        from pyproj import CRS
+        from pyproj.exceptions import CRSError
+
+        try:
+            crs = CRS.from_epsg(args.crs)
+        except CRSError:
+            raise GeorefError(f"--crs {args.crs}: not an EPSG code pyproj knows") from None
+        if not crs.is_projected:
+            raise GeorefError(f"--crs {args.crs} ({crs.name}) is not a projected CRS: the site needs metric E/N axes")
+        o.site = replace(o.site, epsg=args.crs)
     if args.image_size is not None:
         o.camera = o.camera.scaled(*args.image_size)
     if args.workers is not None:
