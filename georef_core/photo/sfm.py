@@ -1,0 +1,182 @@
+"""Step: structure from motion. Feature extraction, matching (matcher chosen from the image count and
+the known positions) and incremental mapping of a folder of images; writes the COLMAP model and a JSON
+summary into a work folder. The CLI and the worker call this same function."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputFileError, ProcessingError
+from . import colmap_api
+from .images import ImageInfo, local_positions_m, read_images
+
+ProgressFn = Callable[[str, int, int], None]  # (stage, done, total)
+
+MATCHERS = ("auto", "exhaustive", "spatial", "sequential")
+
+
+@dataclass
+class SfmOptions:
+    camera_model: str = "SIMPLE_RADIAL"  # SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, ...
+    single_camera: bool = True  # one set of intrinsics shared by all images
+    matcher: str = "auto"
+    exhaustive_max_images: int = 30  # auto: exhaustive up to this many images
+    spatial_max_neighbors: int = 20
+    spatial_max_distance_m: float = 150.0
+    sequential_overlap: int = 10
+    max_image_size: int = 3200
+    max_num_features: int = 8192
+    num_threads: int = 2  # 1: single-threaded (reproducible timings); -1: all cores
+    use_gpu: bool = False
+    refine_principal_point: bool = False
+    random_seed: int = 0
+    verbose: bool = False  # COLMAP's own log (glog) on stderr
+    positions: dict[str, tuple[float, float, float]] | None = None  # name -> local metric xyz (else EXIF GPS)
+
+
+@dataclass
+class SfmResult:
+    work_dir: Path
+    model_dir: Path | None
+    summary_path: Path
+    matcher: str
+    n_images: int
+    n_registered: int
+    mean_reprojection_error_px: float
+    timings_s: dict
+    reconstruction: colmap_api.ReconstructionData | None
+    images: list[ImageInfo] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+    def centres_by_name(self) -> dict[str, np.ndarray]:
+        if self.reconstruction is None:
+            return {}
+        return {im.name: im.centre for im in self.reconstruction.images.values()}
+
+
+def choose_matcher(n_images: int, have_positions: bool, options: SfmOptions) -> str:
+    if options.matcher != "auto":
+        if options.matcher not in MATCHERS:
+            raise ValueError(f"matcher {options.matcher!r}: use one of {', '.join(MATCHERS)}")
+        if options.matcher == "spatial" and not have_positions:
+            raise ProcessingError("spatial matching needs image positions (EXIF GPS or options.positions)")
+        return options.matcher
+    if n_images <= options.exhaustive_max_images:
+        return "exhaustive"
+    return "spatial" if have_positions else "sequential"
+
+
+def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: ProgressFn | None = None) -> SfmResult:
+    """Run SfM on the images of `image_dir`; everything is (re)written under `work_dir`:
+    `database.db`, `sparse/0` (the largest model, COLMAP binary), `sfm_summary.json`."""
+    opts = options or SfmOptions()
+    image_dir, work_dir = Path(image_dir), Path(work_dir)
+    report = progress or (lambda stage, done, total: None)
+    colmap_api.set_log_level(opts.verbose)
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    report("reading images", 0, 1)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        infos = read_images(image_dir)
+    exif_warnings = [str(w.message) for w in caught]
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    timings["read_images"] = time.perf_counter() - t0
+    if len(infos) < 2:
+        raise InputFileError(image_dir, f"SfM needs at least 2 images, found {len(infos)}")
+
+    positions, frame = (opts.positions, {"type": "given"}) if opts.positions else local_positions_m(infos)
+    matcher = choose_matcher(len(infos), positions is not None, opts)
+
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db_path = work_dir / "database.db"
+    sparse = work_dir / "sparse"
+    raw = work_dir / "mapper_models"
+    for p in (sparse, raw):
+        if p.exists():
+            shutil.rmtree(p)
+    colmap_api.open_database(db_path, fresh=True).close()
+    names = [i.name for i in infos]
+
+    report("extraction", 0, len(infos))
+    t0 = time.perf_counter()
+    colmap_api.extract_sift(db_path, image_dir, image_names=names, camera_model=opts.camera_model,
+                            single_camera=opts.single_camera, max_image_size=opts.max_image_size,
+                            max_num_features=opts.max_num_features, num_threads=opts.num_threads,
+                            use_gpu=opts.use_gpu)
+    timings["extraction"] = time.perf_counter() - t0
+    report("extraction", len(infos), len(infos))
+
+    report("matching", 0, 1)
+    t0 = time.perf_counter()
+    common = {"num_threads": opts.num_threads, "use_gpu": opts.use_gpu}
+    if matcher == "exhaustive":
+        colmap_api.match_exhaustive(db_path, **common)
+    elif matcher == "spatial":
+        colmap_api.match_spatial(db_path, positions, max_num_neighbors=opts.spatial_max_neighbors,
+                                 max_distance_m=opts.spatial_max_distance_m, **common)
+    else:
+        colmap_api.match_sequential(db_path, overlap=opts.sequential_overlap, **common)
+    timings["matching"] = time.perf_counter() - t0
+    counts = colmap_api.database_counts(db_path)
+    report("matching", 1, 1)
+
+    registered = [0]
+
+    def on_next_image():
+        registered[0] += 1
+        report("mapping", min(registered[0] + 1, len(infos)), len(infos))
+
+    report("mapping", 0, len(infos))
+    t0 = time.perf_counter()
+    out = colmap_api.incremental_mapping(db_path, image_dir, raw, num_threads=opts.num_threads,
+                                         refine_principal_point=opts.refine_principal_point,
+                                         random_seed=opts.random_seed, next_image_callback=on_next_image)
+    timings["mapping"] = time.perf_counter() - t0
+    rec = out.best
+    model_dir = None
+    if out.models:
+        model_dir = colmap_api.write_model(out.models[0], sparse / "0")
+    shutil.rmtree(raw, ignore_errors=True)
+    report("mapping", rec.num_registered if rec else 0, len(infos))
+    timings["total"] = time.perf_counter() - t_start
+
+    n = len(infos)
+    summary = {
+        "image_dir": str(image_dir),
+        "pycolmap_version": colmap_api.PYCOLMAP_VERSION,
+        "n_images": n,
+        "matcher": matcher,
+        "positions_frame": frame if positions is not None else None,
+        "options": {k: v for k, v in asdict(opts).items() if k != "positions"},
+        "database": counts,
+        "models": out.model_sizes,
+        "n_registered": rec.num_registered if rec else 0,
+        "unregistered": sorted(set(names) - {im.name for im in rec.images.values()}) if rec else names,
+        "n_points3D": len(rec.points_xyz) if rec else 0,
+        "mean_reprojection_error_px": round(rec.mean_reprojection_error_px, 4) if rec else None,
+        "mean_track_length": round(rec.mean_track_length, 3) if rec else None,
+        "cameras": [asdict(c) for c in rec.cameras.values()] if rec else [],
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        "time_per_image_s": {k: round(timings[k] / n, 4) for k in ("extraction", "matching", "mapping")},
+        "model_dir": str(model_dir) if model_dir else None,
+        "exif_warnings": exif_warnings,
+    }
+    summary_path = work_dir / "sfm_summary.json"
+    summary_path.write_text(json.dumps(summary, indent=2))
+    report("done", 1, 1)
+    return SfmResult(work_dir=work_dir, model_dir=model_dir, summary_path=summary_path, matcher=matcher,
+                     n_images=n, n_registered=summary["n_registered"],
+                     mean_reprojection_error_px=rec.mean_reprojection_error_px if rec else float("nan"),
+                     timings_s=timings, reconstruction=rec, images=infos, summary=summary)
