@@ -113,25 +113,15 @@ class Stockpile:
         return np.stack([self.cx + radius * np.cos(a), self.cy + radius * np.sin(a)], axis=-1)
 
 
-@dataclass
-class Cone(Stockpile):
-    radius: float = 8.0
-    h: float = 5.0
+class _RoundFootprint:
+    """Footprint of a pile with a circular toe of radius ``radius`` and height ``h`` (cone, frustum)."""
 
-    def __post_init__(self) -> None:
-        self.kind = "cone"
-
-    def height(self, x, y):
-        u, v = self._local(x, y)
-        return self.h * np.maximum(0.0, 1.0 - np.hypot(u, v) / self.radius)
+    radius: float
+    h: float
 
     def footprint_sdf(self, x, y):
         u, v = self._local(x, y)
         return np.hypot(u, v) - self.radius
-
-    @property
-    def volume(self):
-        return math.pi * self.radius**2 * self.h / 3.0
 
     @property
     def footprint_area(self):
@@ -148,13 +138,30 @@ class Cone(Stockpile):
     def footprint_polygon(self, n=256):
         return self._circle(self.radius, n)
 
+
+@dataclass
+class Cone(_RoundFootprint, Stockpile):
+    radius: float = 8.0
+    h: float = 5.0
+
+    def __post_init__(self) -> None:
+        self.kind = "cone"
+
+    def height(self, x, y):
+        u, v = self._local(x, y)
+        return self.h * np.maximum(0.0, 1.0 - np.hypot(u, v) / self.radius)
+
+    @property
+    def volume(self):
+        return math.pi * self.radius**2 * self.h / 3.0
+
     def shape_parameters(self):
         return {"radius_m": self.radius, "height_m": self.h,
                 "side_slope_deg": math.degrees(math.atan2(self.h, self.radius))}
 
 
 @dataclass
-class Frustum(Stockpile):
+class Frustum(_RoundFootprint, Stockpile):
     radius: float = 10.0
     top_radius: float = 3.0
     h: float = 4.0
@@ -167,29 +174,10 @@ class Frustum(Stockpile):
         r = np.hypot(u, v)
         return self.h * np.clip((self.radius - r) / (self.radius - self.top_radius), 0.0, 1.0)
 
-    def footprint_sdf(self, x, y):
-        u, v = self._local(x, y)
-        return np.hypot(u, v) - self.radius
-
     @property
     def volume(self):
         R, r = self.radius, self.top_radius
         return math.pi * self.h * (R * R + R * r + r * r) / 3.0
-
-    @property
-    def footprint_area(self):
-        return math.pi * self.radius**2
-
-    @property
-    def max_height(self):
-        return self.h
-
-    @property
-    def bounding_radius(self):
-        return self.radius
-
-    def footprint_polygon(self, n=256):
-        return self._circle(self.radius, n)
 
     def shape_parameters(self):
         return {"radius_m": self.radius, "top_radius_m": self.top_radius, "height_m": self.h,

@@ -9,9 +9,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def shared_gnss_dir() -> Path | None:
+    """The shared GNSS data folder: $GEOREF_SHARED_DATA (the 'shared' folder, its 'data' or 'data/gnss')
+    or <repo>/../shared; None when absent (tests that need it skip)."""
     env = os.environ.get("GEOREF_SHARED_DATA")
-    for cand in ([Path(env) / "gnss"] if env else []) + [REPO.parent / "shared" / "data" / "gnss"]:
-        if cand.is_dir():
+    root = Path(env) if env else REPO.parent / "shared"
+    for cand in (root / "data" / "gnss", root / "gnss", root):
+        if (cand / "matrtklib_static_1m").is_dir():
             return cand
     return None
 

@@ -5,7 +5,6 @@ skipped systems, compression, duplicates) and error reporting."""
 from __future__ import annotations
 
 import gzip
-import os
 import warnings
 from pathlib import Path
 
@@ -17,20 +16,12 @@ from georef_core.gnss.gnss_time import calendar_to_gps_time_s
 from georef_core.gnss.navigation import NavigationData
 from georef_core.gnss.rinex_nav import read_rinex_nav
 
+from .rtklib_cases import shared_gnss_dir
+
 UNIX_MINUS_GPS_S = 315964800
 
 
-def _gnss_data_dir() -> Path | None:
-    """Shared GNSS data: $GEOREF_SHARED_DATA (the 'shared' folder) or <repo>/../shared."""
-    env = os.environ.get("GEOREF_SHARED_DATA")
-    root = Path(env) if env else Path(__file__).resolve().parents[2].parent / "shared"
-    for cand in (root / "data" / "gnss", root / "gnss", root):
-        if (cand / "matrtklib_static_1m").is_dir():
-            return cand
-    return None
-
-
-DATA = _gnss_data_dir()
+DATA = shared_gnss_dir()
 needs_data = pytest.mark.skipif(DATA is None, reason="shared GNSS data (/work/shared) not available")
 
 EXPECTED_COUNTS = {
