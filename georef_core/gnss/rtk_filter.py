@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ambiguity_resolution import dd_pairs, resolve
+from .ambiguity_resolution import FixResult, dd_pairs, resolve
 from .constants import CLIGHT_M_S
 from .rtk_options import RtkOptions
 from .satellite_geometry import geometric_range_m
@@ -447,8 +447,6 @@ class RtkFilter:
         pref = [(-round(float(np.log10(max(p[i, i], 1e-12))), 1), el_s) for i, el_s in zip(states, elevs)]
         pairs = dd_pairs(states, pref, groups)
         if len(pairs) < o.min_ambiguities_to_fix:
-            from .ambiguity_resolution import FixResult
-
             return FixResult(False, 0.0, None, None, [], None)
         el_of_state = dict(zip(states, elevs))
         pair_el = [el_of_state[i] for i, _ in pairs]

@@ -27,12 +27,13 @@ fail for an engine reason, not a test one, and will XPASS (and so fail) once the
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests.gnss.rtklib_cases import shared_gnss_dir
 
 from georef_core.gnss.camera_events import interpolate_at_events
 from georef_core.gnss.constants import CLIGHT_M_S
@@ -71,15 +72,9 @@ DRONE_GEODETIC = dict(marker_name="ROVR", multipath_period_s=(5.0, 60.0), code_m
 
 
 def _shared_multi_nav() -> Path | None:
-    cands = []
-    env = os.environ.get("GEOREF_SHARED_DATA")
-    if env:
-        cands += [Path(env) / "data" / "gnss", Path(env) / "gnss", Path(env)]
-    cands += [REPO.parent / "shared" / "data" / "gnss", Path("/work/shared/data/gnss")]
-    for c in cands:
-        if (c / "matrtklib_static_1m" / "base.nav").is_file():
-            return c / "matrtklib_static_1m" / "base.nav"
-    return None
+    """The multi-GNSS navigation file of the shared data, or None (tests that need it skip)."""
+    root = shared_gnss_dir()
+    return None if root is None else root / "matrtklib_static_1m" / "base.nav"
 
 
 MULTI_NAV = _shared_multi_nav()
@@ -363,16 +358,21 @@ def test_b_combined_covariance_does_not_double_count(drone_case):
 # (c) single frequency GPS + GLONASS with cycle slips
 # ------------------------------------------------------------------------------------------------------------
 
+def _satellites_by_elevation(nav, tr, base, t0) -> list[str]:
+    """Satellites seen by a u-blox L1 rover at mid-flight (t0 + 100 s), highest first."""
+    probe = simulate_survey(nav, tr.position_ecef, tr.velocity_ecef, [t0 + 100.0], base, [t0 + 100.0], seed=0,
+                            rover_options=ReceiverOptions.ublox_l1())
+    el = np.nan_to_num(probe.rover_truth.elevation_rad[0], nan=-1.0)
+    return [probe.rover_truth.sat_ids[i] for i in np.argsort(-el)]
+
+
 @pytest.fixture(scope="module")
 def l1_slips_case():
     nav, base, t0 = _site("multi")
     tr = _drone_flight(base, t0)
     span = tr.end_gps_s - t0 + 2.0
     # the satellites to slip: highest GPS and GLONASS at mid-flight
-    probe = simulate_survey(nav, tr.position_ecef, tr.velocity_ecef, [t0 + 100.0], base, [t0 + 100.0], seed=0,
-                            rover_options=ReceiverOptions.ublox_l1())
-    el = np.nan_to_num(probe.rover_truth.elevation_rad[0], nan=-1.0)
-    order = [probe.rover_truth.sat_ids[i] for i in np.argsort(-el)]
+    order = _satellites_by_elevation(nav, tr, base, t0)
     gps = [s for s in order if s[0] == "G"]
     glo = [s for s in order if s[0] == "R"]
     slips = (
@@ -410,10 +410,7 @@ def test_c_forward_filter_recovers_from_simultaneous_unflagged_slips():
     nav, base, t0 = _site("multi")
     tr = _drone_flight(base, t0)
     span = tr.end_gps_s - t0 + 2.0
-    probe = simulate_survey(nav, tr.position_ecef, tr.velocity_ecef, [t0 + 100.0], base, [t0 + 100.0], seed=0,
-                            rover_options=ReceiverOptions.ublox_l1())
-    el = np.nan_to_num(probe.rover_truth.elevation_rad[0], nan=-1.0)
-    gps = [probe.rover_truth.sat_ids[i] for i in np.argsort(-el) if probe.rover_truth.sat_ids[i][0] == "G"]
+    gps = [s for s in _satellites_by_elevation(nav, tr, base, t0) if s[0] == "G"]
     slips = tuple(CycleSlip(t0 + 100.0, s, cycles=k, flagged=False) for s, k in zip(gps[:3], (1, 2, 3)))
     sv = simulate_survey(nav, tr.position_ecef, tr.velocity_ecef, epoch_grid(t0, span, 5), base,
                          epoch_grid(t0, span, 1),

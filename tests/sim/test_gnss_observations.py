@@ -11,12 +11,13 @@ GLONASS, Galileo, QZSS, BeiDou) from the shared data folder when present (tests 
 
 from __future__ import annotations
 
-import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from tests.gnss.rtklib_cases import shared_gnss_dir
 
 from georef_core.gnss.constants import CLIGHT_M_S
 from georef_core.gnss.ephemeris import select_ephemeris
@@ -51,16 +52,9 @@ MULTI_BASE_LLH = (35.134707705, 136.977577939, 104.853)
 
 
 def shared_multi_nav() -> Path | None:
-    cands = []
-    env = os.environ.get("GEOREF_SHARED_DATA")
-    if env:
-        cands += [Path(env) / "data" / "gnss", Path(env) / "gnss", Path(env)]
-    cands += [REPO.parent / "shared" / "data" / "gnss", Path("/work/shared/data/gnss")]
-    for c in cands:
-        p = c / "matrtklib_static_1m" / "base.nav"
-        if p.is_file():
-            return p
-    return None
+    """The multi-GNSS navigation file of the shared data, or None (tests that need it skip)."""
+    root = shared_gnss_dir()
+    return None if root is None else root / "matrtklib_static_1m" / "base.nav"
 
 
 MULTI_NAV = shared_multi_nav()
