@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 from ..errors import InputFileError
 from .compressed_files import is_hatanaka, read_bytes
@@ -75,7 +74,3 @@ def load_navigation(paths) -> NavigationData:
         else:
             raise InputFileError(p, "not a RINEX navigation file nor a u-blox UBX log")
     return nav
-
-
-def is_path_like(p) -> bool:
-    return isinstance(p, (str, Path))

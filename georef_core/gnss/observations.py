@@ -73,13 +73,6 @@ class ObservationSet:
     def n_epochs(self) -> int:
         return len(self.gps_time_s)
 
-    def subset_satellites(self, keep: np.ndarray) -> "ObservationSet":
-        keep = np.asarray(keep, dtype=bool)
-        return ObservationSet(
-            self.source_path, self.gps_time_s, [s for s, k in zip(self.sat_ids, keep) if k],
-            self.code_m[:, keep], self.phase_cyc[:, keep], self.doppler_hz[:, keep], self.snr_dbhz[:, keep],
-            self.lli[:, keep], self.signal_codes[:, keep], self.signal_names, self.header, self.event_gps_time_s)
-
 
 def select_bands(raw: RawObservations, priority: dict[str, tuple[str, ...]] = CODE_PRIORITY) -> ObservationSet:
     """Pick, per satellite, epoch and band, the highest-priority tracking code that has a phase or code value.
