@@ -20,3 +20,8 @@ class InputFileError(GeorefError):
 
 class ProcessingError(GeorefError):
     """Inputs are individually valid but cannot be processed together (no common epochs, ...)."""
+
+
+class StepCancelled(GeorefError):
+    """Raised (typically from a progress callback) to stop a running step; the step leaves its work
+    folder in a state from which it can be re-run."""

@@ -8,7 +8,6 @@ import json
 import shutil
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from ..errors import InputFileError, ProcessingError
 from . import colmap_api
 from .images import ImageInfo, local_positions_m, read_images
 
-ProgressFn = Callable[[str, int, int], None]  # (stage, done, total)
+from ..progress import ProgressFn  # (stage, done, total)
 
 MATCHERS = ("auto", "exhaustive", "spatial", "sequential")
 

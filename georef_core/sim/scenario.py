@@ -22,7 +22,6 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -34,7 +33,7 @@ from .survey_gnss import GnssOptions, SurveyGnssResult, simulate_survey_gnss
 from .texture import TextureOptions, generate_texture, sun_vector_enu
 from .truth import write_events_csv, write_gcp_points, write_truth
 
-ProgressFn = Callable[[str, int, int], None]
+from ..progress import ProgressFn
 
 
 @dataclass
