@@ -25,6 +25,7 @@ __all__ = [
     "KLOBUCHAR_DEFAULT_ALPHA",
     "KLOBUCHAR_DEFAULT_BETA",
     "klobuchar_delay_m",
+    "klobuchar_parameters",
     "klobuchar_variance_m2",
     "modified_hopfield_slant",
     "saastamoinen_zenith_and_slant",
@@ -184,6 +185,16 @@ def _params(values, default) -> np.ndarray:
     return v
 
 
+def klobuchar_parameters(alpha, beta) -> tuple[np.ndarray, np.ndarray]:
+    """The 4 + 4 Klobuchar coefficients to use: RTKLIB's default set when none are given or all are zero."""
+    alpha_v = _params(alpha, KLOBUCHAR_DEFAULT_ALPHA)
+    beta_v = _params(beta, KLOBUCHAR_DEFAULT_BETA)
+    if not np.any(alpha_v) and not np.any(beta_v):
+        alpha_v = np.asarray(KLOBUCHAR_DEFAULT_ALPHA, dtype=float)
+        beta_v = np.asarray(KLOBUCHAR_DEFAULT_BETA, dtype=float)
+    return alpha_v, beta_v
+
+
 def klobuchar_delay_m(
     gps_time_s, lat_rad, lon_rad, az_rad, el_rad, alpha=None, beta=None, freq_hz=GPS_L1_HZ, h_m=None
 ) -> np.ndarray:
@@ -201,11 +212,7 @@ def klobuchar_delay_m(
     Returns:
         Delay (m) at ``freq_hz``; the carrier phase is advanced by the same amount.
     """
-    alpha_v = _params(alpha, KLOBUCHAR_DEFAULT_ALPHA)
-    beta_v = _params(beta, KLOBUCHAR_DEFAULT_BETA)
-    if not np.any(alpha_v) and not np.any(beta_v):
-        alpha_v = np.asarray(KLOBUCHAR_DEFAULT_ALPHA)
-        beta_v = np.asarray(KLOBUCHAR_DEFAULT_BETA)
+    alpha_v, beta_v = klobuchar_parameters(alpha, beta)
     t, lat, lon, az, el = np.broadcast_arrays(
         *(np.asarray(v, dtype=float) for v in (gps_time_s, lat_rad, lon_rad, az_rad, el_rad))
     )

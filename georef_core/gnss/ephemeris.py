@@ -9,8 +9,10 @@ Algorithms follow RTKLIB demo5 (ephemeris.c), so that results can be compared wi
   X and by the Earth rotation since toe about Z.
 * GLONASS: PZ-90 equations of motion (central term, J2, Earth rotation) plus the broadcast luni-solar
   acceleration, integrated with classical RK4 from toe to t in 60 s steps with a shorter last step,
-  exactly RTKLIB's step pattern. The states on the 60 s grid are cached per record, so an evaluation
-  costs one (short) RK4 step. PZ-90 is used as ITRF (no transformation), as in RTKLIB.
+  exactly RTKLIB's step pattern. Compiled (ephemeris_kernels.py): per call, the 60 s grid of each record
+  is integrated once, so an evaluation costs one (short) RK4 step. PZ-90 is used as ITRF (no
+  transformation), as in RTKLIB.
+* Selection and evaluation run per satellite for all requested times at once (satellite_states).
 * Velocities are analytic: the time derivative of the Kepler/GEO formulas (harmonic corrections,
   inclination rate and node rate included) and the integrated velocity for GLONASS. RTKLIB uses a
   1 ms forward difference instead (error up to ~3e-4 m/s from the orbit curvature).
@@ -29,9 +31,7 @@ to ~0.5 mm of along-track satellite motion; results are exact for the time value
 
 from __future__ import annotations
 
-import bisect
 import math
-import threading
 from dataclasses import dataclass
 from typing import Sequence, Union
 
@@ -40,16 +40,13 @@ import numpy as np
 from .constants import (
     CLIGHT_M_S,
     FREQ_HZ,
-    GLO_A_M,
-    GLO_J2,
     GM_BDS_M3_S2,
     GM_GAL_M3_S2,
-    GM_GLO_M3_S2,
     GM_GPS_M3_S2,
     OMEGA_EARTH_BDS_RAD_S,
-    OMEGA_EARTH_GLO_RAD_S,
     OMEGA_EARTH_RAD_S,
 )
+from .ephemeris_kernels import glonass_states, select_records
 from .gnss_time import gps_time_s_to_datetime, leap_seconds_at
 from .navigation import GlonassEphemeris, KeplerEphemeris, NavigationData
 
@@ -60,7 +57,6 @@ Ephemeris = Union[KeplerEphemeris, GlonassEphemeris]
 # for GLONASS (7200, 7200, 14400, 21600 and 1800 s in rtklib.h; Galileo was 10800 s before 2.4.3).
 MAX_EPHEMERIS_AGE_S: dict[str, float] = {"G": 7201.0, "J": 7201.0, "E": 14400.0, "C": 21601.0, "R": 1800.0}
 
-GLONASS_STEP_S = 60.0
 KEPLER_TOLERANCE_RAD = 1e-13
 KEPLER_MAX_ITERATIONS = 30
 
@@ -207,15 +203,18 @@ def clock_polynomial_s(eph: Ephemeris, t_sv_gps_s: float) -> float:
 
 
 class _SortedRecords:
-    """Records of one satellite sorted by toe, with their toes for bisection."""
+    """Records of one satellite sorted by toe, with their toes, I/NAV flags and health for selection."""
 
-    __slots__ = ("source", "length", "records", "toes")
+    __slots__ = ("source", "length", "records", "toes", "inav", "healthy")
 
     def __init__(self, source: list):
         self.source = source
         self.length = len(source)
         self.records = sorted(source, key=lambda r: r.toe_gps_s)
-        self.toes = [r.toe_gps_s for r in self.records]
+        self.toes = np.array([r.toe_gps_s for r in self.records], dtype=float)
+        self.inav = np.array([isinstance(r, KeplerEphemeris) and not is_galileo_fnav(r) for r in self.records],
+                             dtype=bool)
+        self.healthy = np.array([is_healthy(r) for r in self.records], dtype=bool)
 
 
 _SORTED_CACHE: dict[int, _SortedRecords] = {}
@@ -232,6 +231,23 @@ def _sorted_records(records: list) -> _SortedRecords:
     return entry
 
 
+def _select_many(nav: NavigationData, sat_id: str, t_gps_s: np.ndarray,
+                 require_healthy: bool) -> tuple[list, np.ndarray]:
+    """(records of sat_id sorted by toe, index of the record to use at each time or -1); see select_ephemeris."""
+    sys = sat_id[:1]
+    tmax = MAX_EPHEMERIS_AGE_S.get(sys)
+    records = (nav.glonass.get(sat_id) if sys == "R" else nav.kepler.get(sat_id)) if tmax is not None else None
+    if not records:
+        return [], np.full(len(t_gps_s), -1, dtype=np.int64)
+    index = _sorted_records(records)
+    chosen = select_records(index.toes, index.inav, sys == "E", np.ascontiguousarray(t_gps_s, dtype=float), tmax)
+    if require_healthy:
+        unhealthy = chosen >= 0
+        unhealthy[unhealthy] = ~index.healthy[chosen[unhealthy]]
+        chosen[unhealthy] = -1
+    return index.records, chosen
+
+
 def select_ephemeris(nav: NavigationData, sat_id: str, t_gps_s: float, *,
                      require_healthy: bool = True) -> Ephemeris | None:
     """The broadcast record to use for `sat_id` at `t_gps_s`, or None.
@@ -244,37 +260,8 @@ def select_ephemeris(nav: NavigationData, sat_id: str, t_gps_s: float, *,
     None rather than falling back to an older healthy one, which would predate a manoeuvre or
     anomaly. require_healthy=False returns the nearest record whatever its health.
     """
-    sys = sat_id[:1]
-    tmax = MAX_EPHEMERIS_AGE_S.get(sys)
-    if tmax is None or not math.isfinite(t_gps_s):
-        return None
-    records = nav.glonass.get(sat_id) if sys == "R" else nav.kepler.get(sat_id)
-    if not records:
-        return None
-    index = _sorted_records(records)
-    toes = index.toes
-    lo = bisect.bisect_left(toes, t_gps_s - tmax - 1.0)
-    hi = bisect.bisect_right(toes, t_gps_s + tmax + 1.0)
-    candidates = [i for i in range(lo, hi) if abs(toes[i] - t_gps_s) <= tmax]
-    if not candidates:
-        return None
-    recs = index.records
-    if sys == "E":
-        inav = [i for i in candidates if not is_galileo_fnav(recs[i])]
-        if inav:
-            candidates = inav
-        past = [i for i in candidates if toes[i] < t_gps_s]
-        if past:
-            candidates = past
-    best, best_dt = candidates[0], math.inf
-    for i in candidates:
-        d = abs(toes[i] - t_gps_s)
-        if d <= best_dt:
-            best, best_dt = i, d
-    chosen = recs[best]
-    if require_healthy and not is_healthy(chosen):
-        return None
-    return chosen
+    records, chosen = _select_many(nav, sat_id, np.array([t_gps_s], dtype=float), require_healthy)
+    return records[chosen[0]] if chosen[0] >= 0 else None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -302,85 +289,26 @@ def _kepler_row(eph: KeplerEphemeris) -> tuple:
             eph.toe_sow_s, mu, we, 1.0 if geo else 0.0, ephemeris_variance_m2(eph), float(eph.iode))
 
 
-class _GlonassTrack:
-    """RK4 states of one GLONASS record on the grid toe + k*60 s (k >= 0 and k <= 0), built lazily."""
-
-    __slots__ = ("forward", "backward", "acc")
-
-    def __init__(self, eph: GlonassEphemeris):
-        x0 = tuple(float(v) for v in eph.position_ecef_m) + tuple(float(v) for v in eph.velocity_ecef_m_s)
-        self.forward = [x0]
-        self.backward = [x0]
-        self.acc = tuple(float(v) for v in eph.acceleration_ecef_m_s2)
-
-    def state(self, k: int, sign: float) -> tuple:
-        states = self.forward if sign > 0 else self.backward
-        if len(states) <= k:
-            with _GRID_LOCK:   # the grid is shared: extend it under a lock (threads)
-                while len(states) <= k:
-                    states.append(_rk4_step(states[-1], sign * GLONASS_STEP_S, self.acc))
-        return states[k]
-
-
 # Per-record precomputations keyed by id(record); the record itself is kept in the entry so that the id
 # cannot be reused while cached. Records are treated as immutable once evaluated.
 _ROW_CACHE: dict[int, tuple[object, object]] = {}
-_GRID_LOCK = threading.Lock()
 
 
-def _cached(eph: Ephemeris) -> object:
-    """Per-record precomputation (Kepler parameter row or GLONASS track), cached by identity."""
+def _cached(eph: Ephemeris) -> tuple:
+    """Per-record precomputation (Kepler parameter row, or GLONASS state at toe and acceleration), cached by
+    identity."""
     entry = _ROW_CACHE.get(id(eph))
     if entry is not None and entry[0] is eph:
-        return entry[1]
+        return entry[1]  # type: ignore[return-value]
     if len(_ROW_CACHE) >= _CACHE_LIMIT:
         _ROW_CACHE.clear()
-    payload: object = _kepler_row(eph) if isinstance(eph, KeplerEphemeris) else _GlonassTrack(eph)
+    if isinstance(eph, KeplerEphemeris):
+        payload: tuple = _kepler_row(eph)
+    else:
+        payload = (tuple(float(v) for v in eph.position_ecef_m) + tuple(float(v) for v in eph.velocity_ecef_m_s),
+                   tuple(float(v) for v in eph.acceleration_ecef_m_s2))
     _ROW_CACHE[id(eph)] = (eph, payload)
     return payload
-
-
-def _glo_derivative(x: tuple, acc: tuple) -> tuple:
-    """PZ-90 equations of motion in the rotating frame: central force, J2, Coriolis/centrifugal and
-    the broadcast luni-solar acceleration (GLONASS ICD 5.1, A.3.1.2)."""
-    px, py, pz, vx, vy, vz = x
-    r2 = px * px + py * py + pz * pz
-    if r2 <= 0.0:
-        return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    r3 = r2 * math.sqrt(r2)
-    w = OMEGA_EARTH_GLO_RAD_S
-    a = 1.5 * GLO_J2 * GM_GLO_M3_S2 * GLO_A_M * GLO_A_M / r2 / r3
-    b = 5.0 * pz * pz / r2
-    c = -GM_GLO_M3_S2 / r3 - a * (1.0 - b)
-    return (vx, vy, vz,
-            (c + w * w) * px + 2.0 * w * vy + acc[0],
-            (c + w * w) * py - 2.0 * w * vx + acc[1],
-            (c - 2.0 * a) * pz + acc[2])
-
-
-def _rk4_step(x: tuple, h: float, acc: tuple) -> tuple:
-    k1 = _glo_derivative(x, acc)
-    k2 = _glo_derivative(tuple(x[i] + k1[i] * h / 2.0 for i in range(6)), acc)
-    k3 = _glo_derivative(tuple(x[i] + k2[i] * h / 2.0 for i in range(6)), acc)
-    k4 = _glo_derivative(tuple(x[i] + k3[i] * h for i in range(6)), acc)
-    return tuple(x[i] + (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) * h / 6.0 for i in range(6))
-
-
-def _glonass_state(eph: GlonassEphemeris, track: _GlonassTrack, t: float) -> tuple[tuple, float, float]:
-    """(state x,y,z,vx,vy,vz), clock bias, clock drift of a GLONASS record at t (RTKLIB step pattern:
-    full 60 s steps while |remaining| >= 60 s, then one shorter step if |remaining| > 1e-9 s)."""
-    dt = t - eph.toe_gps_s
-    sign = -1.0 if dt < 0.0 else 1.0
-    span = abs(dt)
-    k = int(span // GLONASS_STEP_S)
-    rest = span - k * GLONASS_STEP_S
-    if rest < 0.0:
-        k -= 1
-        rest += GLONASS_STEP_S
-    x = track.state(k, sign)
-    if rest > 1e-9:
-        x = _rk4_step(x, sign * rest, track.acc)
-    return x, -eph.tau_n_s + eph.gamma_n * dt, eph.gamma_n
 
 
 def _glonass_tb_index(eph: GlonassEphemeris, leap_s: int | None) -> int:
@@ -453,6 +381,56 @@ def _kepler_states(rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
     return pos, vel, clock, drift
 
 
+def _evaluate(records: list, rec_id: np.ndarray, t: np.ndarray, leap_seconds: int | None) -> SatelliteStates:
+    """States of records[rec_id[i]] at t[i] (rec_id -1: invalid row)."""
+    n = len(rec_id)
+    out = SatelliteStates.empty(n)
+    if n == 0 or not records:
+        return out
+    # per record: 1 usable Kepler orbit, 2 usable GLONASS state (RTKLIB rejects |tau_n| > 1 s), 0 neither
+    kind = np.array([(1 if r.sqrt_a > 0.0 else 0) if isinstance(r, KeplerEphemeris) else (2 if abs(r.tau_n_s) <= 1.0 else 0)
+                     for r in records], dtype=np.int64)
+    req_kind = np.where((rec_id >= 0) & np.isfinite(t), kind[np.maximum(rec_id, 0)], 0)
+    glo = np.nonzero(req_kind == 2)[0]
+    if len(glo):
+        used = np.unique(rec_id[glo])
+        recs = [records[i] for i in used]
+        params = [_cached(r) for r in recs]
+        x0 = np.array([p[0] for p in params], dtype=float).reshape(-1, 6)
+        acc = np.array([p[1] for p in params], dtype=float).reshape(-1, 3)
+        toe = np.array([r.toe_gps_s for r in recs], dtype=float)
+        local = np.searchsorted(used, rec_id[glo])
+        x = glonass_states(x0, acc, toe, local, np.ascontiguousarray(t[glo]))
+        tau = np.array([r.tau_n_s for r in recs], dtype=float)[local]
+        gamma = np.array([r.gamma_n for r in recs], dtype=float)[local]
+        out.position_ecef_m[glo] = x[:, :3]
+        out.velocity_ecef_m_s[glo] = x[:, 3:]
+        out.clock_bias_s[glo] = -tau + gamma * (t[glo] - toe[local])
+        out.clock_drift_s_s[glo] = gamma
+        out.variance_m2[glo] = np.array([ephemeris_variance_m2(r) for r in recs], dtype=float)[local]
+        out.iode[glo] = np.array([_glonass_tb_index(r, leap_seconds) for r in recs], dtype=np.int64)[local]
+        out.valid[glo] = np.isfinite(x[:, 0]) & ((x[:, 0] * x[:, 0] + x[:, 1] * x[:, 1] + x[:, 2] * x[:, 2]) > 0.0)
+    kep = np.nonzero(req_kind == 1)[0]
+    if len(kep):
+        used = np.unique(rec_id[kep])
+        rows = np.asarray([_cached(records[i]) for i in used], dtype=float)[np.searchsorted(used, rec_id[kep])]
+        pos, vel, clk, drift = _kepler_states(rows, t[kep])
+        out.position_ecef_m[kep] = pos
+        out.velocity_ecef_m_s[kep] = vel
+        out.clock_bias_s[kep] = clk
+        out.clock_drift_s_s[kep] = drift
+        out.variance_m2[kep] = rows[:, _K_VAR]
+        out.iode[kep] = rows[:, _K_IODE].astype(np.int64)
+        out.valid[kep] = np.isfinite(pos).all(axis=1) & np.isfinite(clk)
+    bad = ~out.valid
+    if bad.any():
+        out.position_ecef_m[bad] = 0.0
+        out.velocity_ecef_m_s[bad] = 0.0
+        out.clock_bias_s[bad] = 0.0
+        out.clock_drift_s_s[bad] = 0.0
+    return out
+
+
 def ephemeris_states(records: Sequence[Ephemeris | None], t_gps_s: np.ndarray | float,
                      *, leap_seconds: int | None = None) -> SatelliteStates:
     """States of explicitly given records (no selection, no health test) at times t (gps_time_s).
@@ -461,46 +439,17 @@ def ephemeris_states(records: Sequence[Ephemeris | None], t_gps_s: np.ndarray | 
     only used for the GLONASS tb index reported in `iode` (default: gnss_time table)."""
     n = len(records)
     t = np.broadcast_to(np.asarray(t_gps_s, dtype=float), (n,))
-    out = SatelliteStates.empty(n)
-    kep_idx: list[int] = []
-    kep_rows: list[tuple] = []
+    unique: list = []
+    where: dict[int, int] = {}
+    rec_id = np.full(n, -1, dtype=np.int64)
     for i, rec in enumerate(records):
-        if rec is None or not math.isfinite(t[i]):
-            continue
-        payload = _cached(rec)
-        if isinstance(rec, KeplerEphemeris):
-            if rec.sqrt_a > 0.0:
-                kep_idx.append(i)
-                kep_rows.append(payload)  # type: ignore[arg-type]
-            continue
-        if abs(rec.tau_n_s) > 1.0:   # RTKLIB: reject invalid GLONASS clock
-            continue
-        x, clk, drift = _glonass_state(rec, payload, float(t[i]))  # type: ignore[arg-type]
-        out.position_ecef_m[i] = x[:3]
-        out.velocity_ecef_m_s[i] = x[3:]
-        out.clock_bias_s[i] = clk
-        out.clock_drift_s_s[i] = drift
-        out.variance_m2[i] = ephemeris_variance_m2(rec)
-        out.iode[i] = _glonass_tb_index(rec, leap_seconds)
-        out.valid[i] = math.isfinite(x[0]) and (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) > 0.0
-    if kep_idx:
-        idx = np.asarray(kep_idx)
-        rows = np.asarray(kep_rows, dtype=float)
-        pos, vel, clk, drift = _kepler_states(rows, t[idx])
-        out.position_ecef_m[idx] = pos
-        out.velocity_ecef_m_s[idx] = vel
-        out.clock_bias_s[idx] = clk
-        out.clock_drift_s_s[idx] = drift
-        out.variance_m2[idx] = rows[:, _K_VAR]
-        out.iode[idx] = rows[:, _K_IODE].astype(np.int64)
-        out.valid[idx] = np.isfinite(pos).all(axis=1) & np.isfinite(clk)
-    bad = ~out.valid
-    if bad.any():
-        out.position_ecef_m[bad] = 0.0
-        out.velocity_ecef_m_s[bad] = 0.0
-        out.clock_bias_s[bad] = 0.0
-        out.clock_drift_s_s[bad] = 0.0
-    return out
+        if rec is not None:
+            k = where.get(id(rec))
+            if k is None:
+                k = where[id(rec)] = len(unique)
+                unique.append(rec)
+            rec_id[i] = k
+    return _evaluate(unique, rec_id, t, leap_seconds)
 
 
 def satellite_states(nav: NavigationData, sat_ids: Sequence[str], t_transmit_gps_s: np.ndarray | float,
@@ -513,14 +462,24 @@ def satellite_states(nav: NavigationData, sat_ids: Sequence[str], t_transmit_gps
     satellite clock). The ephemeris is chosen by select_ephemeris at t_select_gps_s (default: the
     transmission time; RTKLIB uses the observation epoch, pass it to reproduce RTKLIB exactly at
     ephemeris changes). Rows without a usable (healthy, unless require_healthy=False) ephemeris have
-    valid=False and zeros elsewhere.
+    valid=False and zeros elsewhere. The selection runs once per satellite for all its rows.
     """
     n = len(sat_ids)
     t = np.broadcast_to(np.asarray(t_transmit_gps_s, dtype=float), (n,))
     ts = t if t_select_gps_s is None else np.broadcast_to(np.asarray(t_select_gps_s, dtype=float), (n,))
-    records = [select_ephemeris(nav, sat, float(ts[i]), require_healthy=require_healthy)
-               for i, sat in enumerate(sat_ids)]
-    return ephemeris_states(records, t, leap_seconds=nav.leap_seconds)
+    rec_id = np.full(n, -1, dtype=np.int64)
+    records: list = []
+    if n:
+        names, inverse = np.unique(np.asarray(sat_ids, dtype=str), return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.searchsorted(inverse[order], np.arange(len(names) + 1))
+        for k, sat in enumerate(names):
+            rows = order[bounds[k]:bounds[k + 1]]
+            recs, chosen = _select_many(nav, str(sat), ts[rows], require_healthy)
+            ok = chosen >= 0
+            rec_id[rows[ok]] = chosen[ok] + len(records)
+            records.extend(recs)
+    return _evaluate(records, rec_id, t, nav.leap_seconds)
 
 
 __all__ = [

@@ -388,7 +388,7 @@ def mlambda_search(
             variance, LAPACK factorisation; default, fastest), "min-pivot" (MLAMBDA minimum
             pivoting) or "none". The result does not depend on it.
         max_nodes: bound on the search-tree size; beyond it SearchLimitError is raised.
-        engine: "compiled" (numba kernels of lambda_kernels.py: full reduction with an explicit Z,
+        engine: "compiled" (numba kernels of lambda_kernels.py: the same lazy MLAMBDA reduction,
             RTKLIB-style search; ~50x faster at n = 60) or "python" (the lazy MLAMBDA reduction and
             Schnorr-Euchner search of this module, kept as the reference implementation).
 
@@ -441,28 +441,18 @@ def mlambda_search(
 
 
 def _search_compiled(a, lmat, d, perm, m, max_nodes) -> LambdaResult:
-    from .lambda_kernels import reduce_ltdl, search_best
+    from .lambda_kernels import search_from_ltdl
 
-    n = a.size
-    a_perm = a.take(perm)
-    a_int = np.floor(a_perm + 0.5)
     lc = np.ascontiguousarray(lmat, dtype=float)
     dc = np.ascontiguousarray(d, dtype=float)
-    zmat = np.eye(n)
-    reduce_ltdl(lc, dc, zmat)
-    if not np.all(dc > 0.0):
+    ints, norms, found, dred = search_from_ltdl(np.ascontiguousarray(a.take(perm)), lc, dc, m, max_nodes,
+                                                _GROWTH_LIMIT, _GROWTH_LIMIT_LOOP, np.asarray(perm, dtype=np.int64))
+    if found == -2:
         raise _not_pd("non-positive conditional variance after reduction")
-    zs = zmat.T @ (a_perm - a_int)
-    zn, norms, found = search_best(lc, dc, zs, m, max_nodes)
     if found < 0:
         raise SearchLimitError(f"search exceeded {max_nodes} nodes (weak float solution)")
-    e = zn[:, :found]
-    f = np.rint(np.linalg.solve(zmat.T, e)) + a_int[:, None]
-    ints = np.zeros((found, n), dtype=np.int64)
-    ints[:, perm] = f.T.astype(np.int64)
-    norms = norms[:found].copy()
     ratio = float(norms[1] / norms[0]) if found >= 2 and norms[0] > 0.0 else float("inf")
-    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio, success_rate=bootstrap_success_rate(dc))
+    return LambdaResult(candidates=ints, squared_norms=norms, ratio=ratio, success_rate=bootstrap_success_rate(dred))
 
 
 def bootstrap_success_rate(conditional_variances) -> float:

@@ -220,10 +220,23 @@ def solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigation
           progress=None) -> PpkSolution:
     """Single-threaded BLAS: the filter's matrices are small (~100-300), and a threaded BLAS on a busy
     machine makes each solve an order of magnitude slower (measured 17x on 2 cores)."""
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas_controller().limit(limits=1, user_api="blas"):
         return _solve(rover_raw, base_raw, nav, opts)
+
+
+_BLAS_CONTROLLER = None
+
+
+def _blas_controller():
+    """threadpoolctl's view of the loaded BLAS libraries (numpy's, and scipy's that the compiled kernels
+    call), built once: scanning the process's libraries costs ~1 ms per solve."""
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from scipy.linalg import cython_blas, cython_lapack  # noqa: F401 - load scipy's BLAS before the scan
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER
 
 
 def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions) -> PpkSolution:

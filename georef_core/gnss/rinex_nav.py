@@ -225,14 +225,9 @@ class _Record:
     data: list[float]         # RTKLIB-style data[] : 3 values of the epoch line, then 4 per line
 
 
-def _is_record_start(line: str, version: float) -> bool:
-    if version >= 3.0:
-        return bool(line[:1].strip())
-    return bool(line[:2].strip())
-
-
 def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Record]:
     v3 = header.version >= 3.0
+    id_width = 1 if v3 else 2   # a record starts with the satellite id in its first column(s)
     i = header.body_start
     n = len(lines)
     while i < n:
@@ -240,11 +235,11 @@ def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Re
         if not line.strip():
             i += 1
             continue
-        if not _is_record_start(line, header.version):
+        if not line[:id_width].strip():
             raise InputFileError(path, "continuation line without a record (satellite/epoch) line", line=i + 1)
         start = i
         j = i + 1
-        while j < n and not _is_record_start(lines[j], header.version):
+        while j < n and not lines[j][:id_width].strip():
             j += 1
         body = lines[start + 1:j]
         i = j
@@ -281,11 +276,41 @@ def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: boo
     if prn <= 0:
         raise InputFileError(path, f"invalid satellite number '{first[:3].strip()}'", line=lineno)
     epoch = _parse_epoch(epoch_text, v3, path, lineno)
-    data = _numbers(first, data_col, _FIELD_WIDTH, 3, path, lineno)
     cont_col = 4 if v3 else 3
-    for k, line in enumerate(body):
-        data.extend(_numbers(line, cont_col, _FIELD_WIDTH, 4, path, lineno + 1 + k, continuation=True))
+    data = _record_numbers(first, body, data_col, cont_col)
+    if data is None:  # line by line, with the free-format fallback and error reporting
+        data = _numbers(first, data_col, _FIELD_WIDTH, 3, path, lineno)
+        for k, line in enumerate(body):
+            data.extend(_numbers(line, cont_col, _FIELD_WIDTH, 4, path, lineno + 1 + k, continuation=True))
     return _Record(system, prn, lineno, epoch, data)
+
+
+def _record_numbers(first: str, body: list[str], data_col: int, cont_col: int) -> list[float] | None:
+    """Fast path of _numbers for a whole record whose lines all keep the fixed columns (3 numbers on the
+    epoch line, 4 per continuation line, blank fields 0.0); None when any line needs the careful path."""
+    w = _FIELD_WIDTH
+    end = data_col + 3 * w
+    if first[end:].strip():
+        return None
+    parts = [first[data_col:end].ljust(3 * w)]
+    end = cont_col + 4 * w
+    for line in body:
+        if line[end:].strip():
+            return None
+        parts.append(line[cont_col:end].ljust(4 * w))
+    text = "".join(parts).replace("D", "E").replace("d", "e")
+    n_fields = len(text) // w
+    text = text.rstrip()   # blank spare fields at the end read 0.0
+    fields = [text[k:k + w] for k in range(0, len(text), w)]
+    try:
+        values = list(map(float, fields)) + [0.0] * (n_fields - len(fields))
+    except ValueError:
+        try:
+            values = [float(f) if f.strip() else 0.0 for f in fields] + [0.0] * (n_fields - len(fields))
+        except ValueError:
+            return None
+    total = sum(values)
+    return values if math.isfinite(total) else None
 
 
 def _parse_epoch(text: str, v3: bool, path: Path, lineno: int) -> tuple[int, int, int, int, int, float]:
@@ -393,7 +418,9 @@ def _glonass(rec: _Record, leap_header: int | None) -> GlonassEphemeris:
 
 
 def _kepler_key(e: KeplerEphemeris) -> tuple:
-    return tuple(v for k, v in e.__dict__.items() if k != "transmit_gps_s")
+    fields = dict(e.__dict__)
+    del fields["transmit_gps_s"]
+    return tuple(fields.values())
 
 
 def _glonass_key(g: GlonassEphemeris) -> tuple:

@@ -29,13 +29,12 @@ Reading
   file that ends inside an epoch (fewer lines than announced, or a last line cut inside a value) is *not* an
   error: the complete epochs are kept and a :class:`RinexTruncatedWarning` names the file and line.
 
-Speed (~0.01-0.03 s/MB on a 2-core machine): the only per-line Python work is splitting epochs. Observation
+Speed (~0.005-0.02 s/MB on a 2-core machine): the only per-line Python work is splitting epochs. Observation
 lines are padded into one fixed-width byte matrix and its 16-character fields (F14.3 value, LLI, SSI) are decoded
-in cache-sized chunks with numpy: digits are the low 4 bits of the characters, a lookup table gives character
-classes, and float32 matrix-vector products (every partial sum below 2**24, hence exact) give the integer value in
-thousandths and a base-5 "signature" of the field's layout, checked against the set of valid layouts (anything
-else, e.g. letters or a shifted column, is reported with its line). Fields that are valid numbers but not in
-F14.3 layout (other decimals, exponents) take a slower per-field path.
+by a compiled kernel (rinex_obs_kernels.py) that reads the integer value in thousandths and checks the layout
+(blanks, optional minus, digits, the point in column 11, three decimals, flags blank or a digit). Anything else
+takes a slower per-field path: valid numbers in other layouts (other decimals, exponents) are read there, and
+letters or a shifted column are reported with their line.
 
 Writing
 -------
@@ -60,6 +59,7 @@ from ..errors import InputFileError
 from .compressed_files import read_text
 from .gnss_time import calendar_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .observations import RawObservations, ReceiverHeader
+from .rinex_obs_kernels import decode_fields
 
 __all__ = [
     "RINEX2_TO_RINEX3",
@@ -103,76 +103,19 @@ _RINEX2_WRITABLE_SYSTEMS = "GRES"   # systems RINEX 2.11 defines
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Vectorised decoding of 16-character observation fields (F14.3 value, I1 LLI, I1 SSI)
+# Decoding of 16-character observation fields (F14.3 value, I1 LLI, I1 SSI): compiled fast path
+# (rinex_obs_kernels.decode_fields), slow path for other number layouts
 # ----------------------------------------------------------------------------------------------------------
 
 _FIELD = 16
-_CHUNK_FIELDS = 1 << 14     # fields per decoding chunk: small enough for the temporaries to stay in cache
-
-# Character classes; a field's class string is summarised as an exact base-5 signature.
-_CLASS_SPACE, _CLASS_DIGIT, _CLASS_DOT, _CLASS_MINUS, _CLASS_OTHER = 0, 1, 2, 3, 4
-_CLASS_LUT = np.full(256, float(_CLASS_OTHER), dtype=np.float32)
-_CLASS_LUT[32] = _CLASS_SPACE
-_CLASS_LUT[48:58] = _CLASS_DIGIT
-_CLASS_LUT[46] = _CLASS_DOT
-_CLASS_LUT[45] = _CLASS_MINUS
-# Digits are taken as (character & 15): '0'-'9' -> 0-9, ' ' -> 0, '-' -> 13 (removed per layout), '.' has weight 0.
-# The value in thousandths is split in two float32 dot products that stay below 2**24, hence exact:
-# columns 0-6 ("high", x 10**6) and columns 7-9, 11-13 ("low").
-_W_HIGH = np.array([10.0 ** (6 - j) for j in range(7)] + [0.0] * 9, dtype=np.float32)
-_W_LOW = np.array([0.0] * 7 + [1e5, 1e4, 1e3, 0.0, 1e2, 1e1, 1.0, 0.0, 0.0], dtype=np.float32)
-_W_SIG_A = np.array([5.0 ** (7 - j) for j in range(8)] + [0.0] * 8, dtype=np.float32)   # columns 0-7
-_W_SIG_B = np.array([0.0] * 8 + [5.0 ** (7 - j) for j in range(8)], dtype=np.float32)   # columns 8-15
-_MINUS_DIGIT = 45 & 15
-
-
-def _valid_field_layouts() -> dict[str, np.ndarray]:
-    """Every valid F14.3+LLI+SSI layout: sorted signatures and, for each, blank?, negative?, minus-sign offsets."""
-    value_layouts: list[tuple[list[int], bool, int]] = [([_CLASS_SPACE] * 14, True, -1)]
-    for n_int in range(0, 11):          # digits before the point (0 allows '.123' and '-.123')
-        for neg in (False, True):
-            n_lead = 10 - n_int - (1 if neg else 0)
-            if n_lead < 0:
-                continue
-            cls = [_CLASS_SPACE] * n_lead + ([_CLASS_MINUS] if neg else []) + [_CLASS_DIGIT] * n_int
-            value_layouts.append((cls + [_CLASS_DOT] + [_CLASS_DIGIT] * 3, False, n_lead if neg else -1))
-    rows = []
-    for cls, is_blank, minus_at in value_layouts:
-        for lli in (_CLASS_SPACE, _CLASS_DIGIT):
-            for ssi in (_CLASS_SPACE, _CLASS_DIGIT):
-                full = np.array(cls + [lli, ssi], dtype=np.float64)
-                sig = float(full @ _W_SIG_A) * 5.0 ** 8 + float(full @ _W_SIG_B)
-                minus = np.zeros(_FIELD)
-                if minus_at >= 0:
-                    minus[minus_at] = _MINUS_DIGIT
-                rows.append((sig, is_blank, minus_at >= 0, float(minus @ _W_HIGH), float(minus @ _W_LOW)))
-    rows.sort()
-    cols = list(zip(*rows))
-    return {"sig": np.array(cols[0]), "blank": np.array(cols[1]), "neg": np.array(cols[2]),
-            "off_high": np.array(cols[3]), "off_low": np.array(cols[4])}
-
-
-_LAYOUTS = _valid_field_layouts()
+_CHUNK_FIELDS = 1 << 14     # fields per decoding chunk
 # right-aligned in its 14 columns: trailing blanks would mean a shifted column
 _GENERIC_NUMBER = re.compile(rb"^ *[-+]?(\d+\.?\d*|\.\d+)([eEdD][-+]?\d+)?$")
 
 
 def _decode_chunk(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(n, 16) uint8 fields -> values (NaN where missing), LLI, SSI, and a mask of fields not in F14.3 layout."""
-    low4 = c & np.uint8(15)
-    digits = low4.astype(np.float32)
-    classes = np.take(_CLASS_LUT, c)
-    sig = (classes @ _W_SIG_A).astype(np.float64) * 5.0 ** 8 + classes @ _W_SIG_B
-    table = _LAYOUTS["sig"]
-    pos = np.minimum(np.searchsorted(table, sig), len(table) - 1)
-    valid = table[pos] == sig
-    high = (digits @ _W_HIGH).astype(np.float64) - _LAYOUTS["off_high"][pos]
-    low = (digits @ _W_LOW).astype(np.float64) - _LAYOUTS["off_low"][pos]
-    thousandths = high * 1e6 + low
-    values = thousandths / 1000.0
-    np.negative(values, out=values, where=_LAYOUTS["neg"][pos])
-    values[_LAYOUTS["blank"][pos] | (thousandths == 0.0)] = np.nan
-    return values, low4[:, 14], low4[:, 15], ~valid
+    return decode_fields(c)
 
 
 def _decode_generic(path: Path, c: np.ndarray, line_of_field: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputFileError
-from .frames import ecef_covariance_to_enu, ecef_to_crs, ecef_to_enu_rotation, ecef_to_geodetic
+from .frames import ecef_to_crs, ecef_to_enu_rotation, ecef_to_geodetic
 from .gnss_time import calendar_to_gps_time_s, gps_time_s_to_datetime
 
 STATUS_NAMES = {0: "none", 1: "fix", 2: "float", 5: "single"}
@@ -18,6 +18,14 @@ STATUS_NAMES = {0: "none", 1: "fix", 2: "float", 5: "single"}
 
 def _signed_sqrt(v):
     return np.sign(v) * np.sqrt(np.abs(v))
+
+
+def _enu_rotations(lat_rad: np.ndarray, lon_rad: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations ECEF -> local east/north/up (frames.ecef_to_enu_rotation for many points)."""
+    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
+    zero = np.zeros_like(sl)
+    return np.stack([np.stack([-so, co, zero], -1), np.stack([-sl * co, -sl * so, cl], -1),
+                     np.stack([cl * co, cl * so, sl], -1)], -2)
 
 
 def write_pos(path, sol, program: str = "georef") -> None:
@@ -42,16 +50,17 @@ def write_pos(path, sol, program: str = "georef") -> None:
     lines.append("%  GPST                  latitude(deg) longitude(deg)  height(m)   Q  ns   sdn(m)   sde(m)   sdu(m)"
                  "  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio")
     llh = ecef_to_geodetic(np.nan_to_num(sol.position_ecef_m))
-    for e in valid:
+    rot = _enu_rotations(llh[valid, 0], llh[valid, 1])
+    q_enu = rot @ sol.covariance_ecef_m2[valid] @ rot.transpose(0, 2, 1)
+    sd = np.sqrt(np.abs(np.diagonal(q_enu, axis1=1, axis2=2)))  # e, n, u
+    sdne, sdeu, sdun = _signed_sqrt(q_enu[:, 1, 0]), _signed_sqrt(q_enu[:, 0, 2]), _signed_sqrt(q_enu[:, 2, 1])
+    lat, lon, h = np.degrees(llh[valid, 0]), np.degrees(llh[valid, 1]), llh[valid, 2]
+    age = np.where(np.isfinite(sol.age_s[valid]), sol.age_s[valid], 0.0)
+    for k, e in enumerate(valid):
         dt = gps_time_s_to_datetime(round(sol.time_s[e], 3))
-        lat, lon, h = np.degrees(llh[e, 0]), np.degrees(llh[e, 1]), llh[e, 2]
-        q = ecef_covariance_to_enu(sol.covariance_ecef_m2[e], sol.position_ecef_m[e])
-        sd = np.sqrt(np.abs(np.diag(q)))  # e, n, u
-        sdne, sdeu, sdun = _signed_sqrt(q[1, 0]), _signed_sqrt(q[0, 2]), _signed_sqrt(q[2, 1])
-        age = sol.age_s[e] if np.isfinite(sol.age_s[e]) else 0.0
-        lines.append(f"{dt:%Y/%m/%d %H:%M:%S}.{dt.microsecond // 1000:03d} {lat:14.9f} {lon:14.9f} {h:10.4f} "
-                     f"{int(sol.status[e]):3d} {int(sol.n_sats[e]):3d} {sd[1]:8.4f} {sd[0]:8.4f} {sd[2]:8.4f} "
-                     f"{sdne:8.4f} {sdeu:8.4f} {sdun:8.4f} {age:6.2f} {sol.ratio[e]:6.1f}")
+        lines.append(f"{dt:%Y/%m/%d %H:%M:%S}.{dt.microsecond // 1000:03d} {lat[k]:14.9f} {lon[k]:14.9f} {h[k]:10.4f} "
+                     f"{int(sol.status[e]):3d} {int(sol.n_sats[e]):3d} {sd[k, 1]:8.4f} {sd[k, 0]:8.4f} {sd[k, 2]:8.4f} "
+                     f"{sdne[k]:8.4f} {sdeu[k]:8.4f} {sdun[k]:8.4f} {age[k]:6.2f} {sol.ratio[e]:6.1f}")
     Path(path).write_text("\n".join(lines) + "\n")
 
 
