@@ -54,6 +54,10 @@ class ReconstructionData:
     points_track_length: np.ndarray  # (N,) int
     mean_reprojection_error_px: float
     mean_track_length: float
+    # the observations (tracks): one row per (image, 3-D point) measurement
+    obs_image_id: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    obs_point_index: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # row in points_xyz
+    obs_xy_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # COLMAP pixels (top-left corner = 0, 0)
 
     @property
     def num_registered(self) -> int:
@@ -342,15 +346,33 @@ def reconstruction_data(rec) -> ReconstructionData:
     rgb = np.zeros((n, 3), dtype=np.uint8)
     err = np.zeros(n)
     tl = np.zeros(n, dtype=int)
+    obs_img: list[int] = []
+    obs_pt: list[int] = []
+    obs_p2d: list[int] = []
     for k, p in enumerate(rec.points3D.values()):
         xyz[k] = p.xyz
         rgb[k] = p.color
         err[k] = p.error
         tl[k] = p.track.length()
+        for el in p.track.elements:
+            obs_img.append(int(el.image_id))
+            obs_pt.append(k)
+            obs_p2d.append(int(el.point2D_idx))
+    obs_xy = np.zeros((len(obs_img), 2))
+    if obs_img:
+        by_image: dict[int, list[int]] = {}
+        for row, iid in enumerate(obs_img):
+            by_image.setdefault(iid, []).append(row)
+        for iid, rows in by_image.items():
+            pts2d = rec.images[iid].points2D
+            for row in rows:
+                obs_xy[row] = pts2d[obs_p2d[row]].xy
     mre = float(rec.compute_mean_reprojection_error()) if n else float("nan")
     return ReconstructionData(cameras=cameras, images=images, points_xyz=xyz, points_rgb=rgb, points_error_px=err,
                               points_track_length=tl, mean_reprojection_error_px=mre,
-                              mean_track_length=float(tl.mean()) if n else 0.0)
+                              mean_track_length=float(tl.mean()) if n else 0.0,
+                              obs_image_id=np.asarray(obs_img, dtype=int), obs_point_index=np.asarray(obs_pt, dtype=int),
+                              obs_xy_px=obs_xy)
 
 
 

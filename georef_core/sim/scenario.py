@@ -31,7 +31,7 @@ from .render import Renderer, RenderOptions, TerrainMesh, exif_bytes, write_jpeg
 from .site import Site, SiteOptions, build_site
 from .survey_gnss import GnssOptions, SurveyGnssResult, simulate_survey_gnss
 from .texture import TextureOptions, generate_texture, sun_vector_enu
-from .truth import write_events_csv, write_gcp_points, write_truth
+from .truth import write_events_csv, write_gcp_image_measurements, write_gcp_points, write_truth
 
 from ..progress import ProgressFn
 
@@ -46,6 +46,7 @@ class SimulationOptions:
     dsm_resolution_m: float = 0.1
     dsm_margin_m: float = 10.0  # DSM covers the work area plus this margin
     gcp_noise_m: tuple[float, float] = (0.0, 0.0)  # survey noise (sigma horizontal, vertical) in gcp/points.csv
+    gcp_click_noise_px: float = 0.3  # sigma per axis of the target image measurements in gcp/gcp_list.txt
     exif_gps_noise_m: tuple[float, float] | None = (1.5, 3.0)  # navigation-grade GPS in EXIF; None: no GPS tags
     coverage_margin_m: float | None = None  # rendered world beyond the planned footprints; None: 0.15 h + 3 m
     max_texels: float = 1.2e8  # the texel is enlarged if the texture would exceed this
@@ -161,6 +162,19 @@ def _write_readmes(out: Path, site: Site, n_images: int, flight: FlightOptions, 
         f"Lever arm (camera frame, m): {list(flight.lever_arm_cam_m)}; delay: {flight.trigger_delay_s} s.\n")
 
 
+def _write_survey_json(out: Path, site: Site, traj, gnss: SurveyGnssResult | None) -> None:
+    """``survey.json``: what the surveyor knows about the flight besides the files (project CRS, the
+    surveyed take-off point for single-frequency known-start PPK, the points' CRS)."""
+    import json
+
+    doc = {"project_crs": f"EPSG:{site.frame.epsg}", "points_crs": f"EPSG:{site.frame.epsg}",
+           "heights": "ellipsoidal (WGS84)"}
+    if gnss is not None:
+        doc["receiver"] = (gnss.summary.get("receiver") or {}).get("rover")
+        doc["takeoff_antenna_ecef_m"] = [round(float(v), 4) for v in gnss.takeoff_antenna_ecef_m]
+    (out / "survey.json").write_text(json.dumps(doc, indent=1) + "\n")
+
+
 def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = None,
                   progress: ProgressFn | None = None, verbose: bool = True) -> SimulationResult:
     """Simulate a survey into ``out_dir`` (created); deterministic for a given seed and options.
@@ -270,6 +284,9 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
     write_truth(out / "truth", site, plan, traj, events, camera, o.flight, o.dsm_resolution_m, dsm_bounds,
                 extra={"simulation_options": asdict(o), "rendered_bounds_site_m": list(bounds)})
     write_gcp_points(out / "gcp", site, o.gcp_noise_m, seed)
+    write_gcp_image_measurements(out / "gcp" / "gcp_list.txt", site, traj, events, camera, o.flight.lever_arm_cam_m,
+                                 o.gcp_click_noise_px, seed)
+    _write_survey_json(out, site, traj, gnss)
     write_events_csv(out / "events.csv", events)
     _write_readmes(out, site, len(events), o.flight, gnss)
     tick("truth", t)

@@ -254,3 +254,34 @@ def write_truth(truth_dir, site, plan: FlightPlan, trajectory: Trajectory, event
         desc.update(extra)
     write_json(d / "site.json", desc)
     return {"dsm": dsm, "n_images": len(events)}
+
+
+def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: list[CameraEvent], camera,
+                                 lever_arm_cam_m, noise_px: float = 0.3, seed: int = 0, border_px: float = 8.0) -> int:
+    """``gcp/gcp_list.txt``: where a surveyor would have clicked each target in each image, in OpenDroneMap's
+    format (first line the CRS, then ``E N h x y image name``; pixel (0, 0) is the centre of the top-left
+    pixel). Positions are the true projections plus ``noise_px`` (sigma per axis) of clicking noise;
+    targets closer than ``border_px`` to the image edge are left out. Returns the number of lines."""
+    f = site.frame
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 808]))
+    lever = np.asarray(lever_arm_cam_m, dtype=float)
+    targets = site.targets
+    if not targets:
+        return 0
+    t_enu = np.array([f.site_to_enu(t.x, t.y, t.z) for t in targets])
+    lines = [f"EPSG:{f.epsg}"]
+    for e in events:
+        te = e.exposure_gps_time_s
+        R = trajectory.R_cam_to_enu(te)
+        c = trajectory.position_enu(te) + R @ lever
+        px = camera.project_world(t_enu, c, R)
+        for t, uv in zip(targets, px):
+            if not np.all(np.isfinite(uv)):
+                continue
+            if not (border_px <= uv[0] <= camera.width - 1 - border_px and border_px <= uv[1] <= camera.height - 1 - border_px):
+                continue
+            u, v = uv + rng.standard_normal(2) * noise_px
+            lines.append(f"{t.x + f.origin_e:.4f} {t.y + f.origin_n:.4f} {t.z:.4f} {u:.2f} {v:.2f} {e.name} {t.name}")
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text("\n".join(lines) + "\n")
+    return len(lines) - 1

@@ -45,3 +45,122 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
     summary_path.write_text(json.dumps(summary, indent=2))
     summary["outputs"]["summary"] = str(summary_path)
     return summary
+
+
+# --------------------------------------------------------------------------------------------------------
+# the survey-folder form used by `georef georef` and the worker
+# --------------------------------------------------------------------------------------------------------
+
+def _files_of_kind(folder: Path, kinds: tuple[str, ...]) -> list[Path]:
+    from ..gnss.input_files import sniff_kind
+
+    if not folder.is_dir():
+        return []
+    out = []
+    for p in sorted(folder.iterdir()):
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() not in (".md", ".txt", ".json", ".csv"):
+            try:
+                if sniff_kind(p) in kinds:
+                    out.append(p)
+            except Exception:  # unreadable files are reported by the reader when they matter
+                continue
+    return out
+
+
+def _has_second_frequency(path: Path) -> bool:
+    """Whether a RINEX observation header lists phase on a second band (L2/L5/L7/L6); UBX: no."""
+    from ..gnss.compressed_files import read_bytes
+    from ..gnss.input_files import sniff_kind
+
+    if sniff_kind(path) != "rinex-obs":
+        return False
+    head = read_bytes(path)[:200000].decode("latin-1", errors="replace")
+    end = head.find("END OF HEADER")
+    head = head[:end if end > 0 else len(head)]
+    for line in head.splitlines():
+        label = line[60:].strip()
+        if label in ("SYS / # / OBS TYPES", "# / TYPES OF OBSERV"):
+            for tok in line[:60].split():
+                if tok[:2] in ("L2", "L5", "L7", "L6", "L8"):
+                    return True
+    return False
+
+
+def read_survey_json(survey_dir) -> dict:
+    """``survey.json`` of a survey folder (what the surveyor knows besides the files), or {}."""
+    p = Path(survey_dir) / "survey.json"
+    if not p.is_file():
+        return {}
+    try:
+        return json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        from ..errors import InputFileError
+
+        raise InputFileError(p, f"not valid JSON ({exc})") from None
+
+
+def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None) -> dict:
+    """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json) into
+    ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
+    'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
+    ``known_start_ecef_m``, ``epsg``. 'auto' picks dual frequency when the rover records a second band,
+    and single-frequency known-start when it does not and survey.json gives the take-off point."""
+    from ..errors import InputFileError
+
+    survey_dir = Path(survey_dir)
+    out = Path(out_dir) / "ppk"
+    opt = dict(options or {})
+    meta = read_survey_json(survey_dir)
+    rovers = _files_of_kind(survey_dir / "rover", ("rinex-obs", "ubx"))
+    bases = _files_of_kind(survey_dir / "base", ("rinex-obs",))
+    navs = _files_of_kind(survey_dir / "nav", ("rinex-nav",))
+    if not rovers:
+        raise InputFileError(survey_dir / "rover", "no rover observation file (RINEX obs or u-blox UBX) found here")
+    if len(rovers) > 1:
+        raise InputFileError(survey_dir / "rover", f"{len(rovers)} rover observation files; one flight = one file "
+                                                   f"({', '.join(p.name for p in rovers)})")
+    if not bases:
+        raise InputFileError(survey_dir / "base", "no base-station RINEX observation file found here")
+    if not navs and sniff_ubx(rovers[0]) is False:
+        raise InputFileError(survey_dir / "nav", "no RINEX navigation file found here (and the rover log is not UBX)")
+    if progress:
+        progress("gnss", 0, 1)
+    freq = opt.get("freq", "auto")
+    n_bands = 2 if (freq == "l1+l2" or (freq == "auto" and _has_second_frequency(rovers[0]))) else 1
+    mode = opt.get("mode", "auto")
+    known = opt.get("known_start_ecef_m") or meta.get("takeoff_antenna_ecef_m")
+    if mode == "auto":
+        mode = "known-start" if (n_bands == 1 and known is not None) else "kinematic"
+    kw = dict(mode=mode, n_bands=n_bands, filter_direction=opt.get("direction", "combined"))
+    if mode == "known-start":
+        if known is None:
+            raise InputFileError(survey_dir / "survey.json", "known-start mode needs the take-off antenna position "
+                                                             "(takeoff_antenna_ecef_m)")
+        kw["known_start_position_ecef_m"] = tuple(float(v) for v in known)
+    if opt.get("base_position_ecef_m") is not None:
+        kw["base_position_ecef_m"] = tuple(float(v) for v in opt["base_position_ecef_m"])
+    rtk = RtkOptions(**kw)
+    events_csv = survey_dir / "events.csv" if (survey_dir / "events.csv").is_file() else None
+    epsg = opt.get("epsg")
+    if epsg is None and meta.get("project_crs", "").upper().startswith("EPSG:"):
+        epsg = int(meta["project_crs"].split(":")[1])
+    summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=None, epsg=epsg,
+                             events_out=out / "events.csv")
+    if "events" not in summary and events_csv is not None:
+        summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=events_csv,
+                                 epsg=epsg, events_out=out / "events.csv")
+        summary["events"]["source"] = str(events_csv)
+    elif "events" in summary:
+        summary["events"]["source"] = f"event records in {rovers[0].name}"
+    summary["inputs"] = {"rover": str(rovers[0]), "base": str(bases[0]), "nav": [str(p) for p in navs]}
+    summary["options"] = {"mode": mode, "n_bands": n_bands, "direction": kw["filter_direction"]}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    if progress:
+        progress("gnss", 1, 1)
+    return summary
+
+
+def sniff_ubx(path) -> bool:
+    from ..gnss.input_files import sniff_kind
+
+    return sniff_kind(path) == "ubx"
