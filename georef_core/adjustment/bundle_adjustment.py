@@ -1,0 +1,518 @@
+"""GNSS-aided bundle adjustment with lever arm, trigger delay and ground control (Daakir et al. 2015,
+eq. 6, solved jointly with the tie points as the paper's conclusion proposes).
+
+Unknowns, all in the local ENU frame of the project (metres, radians, seconds):
+
+* per camera: attitude (``R_cam_to_enu``, updated by a small rotation on the left) and centre ``C_i``;
+* the shared intrinsics (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2; which are free is a choice);
+* the lever arm ``L`` (camera frame) and the trigger delay ``dt``;
+* the tie points and the control points ``X_p``.
+
+Observations, each group with its own a-priori sigma and a variance component estimated from its
+residuals (so the posterior covariances are "honest"):
+
+* image measurements of tie and control points (pixels);
+* GNSS antenna positions at the camera triggers ``A_i`` with their PPK covariance:
+  ``C_i = A_i + R_i L + v_i dt`` (v_i the antenna velocity at the trigger);
+* surveyed control point coordinates with their covariance.
+
+Solved by Levenberg-Marquardt on the normal equations with the points eliminated (Schur complement;
+the reduced camera system is dense and small). Robustness by iteratively reweighted least squares
+(Huber) on each image measurement and each GNSS epoch; observations whose normalised residual stays
+large are flagged as outliers. Posterior covariance of cameras, intrinsics, lever arm and delay is the
+inverse of the reduced system after the variance components have been applied.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+
+from ..errors import ProcessingError
+from .camera_model import PARAM_NAMES, project_camera_points
+
+_INTR_STEP = np.array([1e-2, 1e-2, 1e-2, 1e-6, 1e-6, 1e-6, 1e-7, 1e-7])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(n, 3) -> (n, 3, 3) cross-product matrices."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+@dataclass
+class BundleProblem:
+    R_cam_to_enu: np.ndarray          # (N, 3, 3)
+    centre_enu_m: np.ndarray          # (N, 3)
+    intrinsics: np.ndarray            # (8,) see camera_model
+    points_enu_m: np.ndarray          # (P, 3) tie points followed by control/check points
+    obs_camera: np.ndarray            # (M,) camera index of each image measurement
+    obs_point: np.ndarray             # (M,) point index
+    obs_uv_px: np.ndarray             # (M, 2) OpenCV pixel convention
+    obs_sigma_px: np.ndarray          # (M,) a-priori sigma per measurement
+    obs_group: np.ndarray             # (M,) 0 tie point, 1 control/check point measurement
+    gnss_camera: np.ndarray = field(default_factory=lambda: np.zeros(0, int))   # (K,)
+    antenna_enu_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    antenna_velocity_enu_m_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    antenna_cov_enu_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    lever_arm_cam_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    delay_s: float = 0.0
+    control_point: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # (Q,) point index
+    control_enu_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    control_cov_enu_m2: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    # a-priori lever arm (e.g. tape-measured) used as a weighted observation when the lever arm is estimated
+    lever_arm_prior_cam_m: np.ndarray | None = None
+    lever_arm_prior_sigma_m: np.ndarray | None = None
+
+
+@dataclass
+class BundleOptions:
+    free_intrinsics: np.ndarray = field(default_factory=lambda: np.ones(8, bool))
+    estimate_lever_arm: bool = True
+    estimate_delay: bool = True
+    max_iterations: int = 40
+    huber_k: float = 2.5          # in units of the normalised residual
+    outlier_k: float = 4.0        # flagged beyond this many sigma (after convergence)
+    variance_components: bool = True
+    min_gnss_sigma_m: float = 0.005  # floor added in quadrature to the PPK sigma (timing, interpolation)
+    tolerance: float = 1e-6       # relative cost decrease to stop
+    initial_variances: dict | None = None  # variance factors to start from (e.g. from a previous adjustment)
+
+
+@dataclass
+class BundleResult:
+    problem: BundleProblem         # holds the adjusted values
+    iterations: int
+    converged: bool
+    rms_reprojection_px: float
+    sigma0: dict                   # a-posteriori variance factors per group (1 = a-priori sigma was right)
+    global_names: list[str]        # names of the free global parameters
+    global_values: np.ndarray
+    global_cov: np.ndarray         # covariance of the free global parameters
+    camera_cov: np.ndarray         # (N, 6, 6): rotation (rad, world axes) and centre (m)
+    obs_outlier: np.ndarray        # (M,) bool
+    gnss_outlier: np.ndarray       # (K,) bool
+    gnss_residual_enu_m: np.ndarray  # (K, 3) C - (A + R L + v dt)
+    obs_residual_px: np.ndarray    # (M, 2)
+    point_cov_enu_m2: dict = field(default_factory=dict)  # point index -> (3, 3) for control points
+
+    @property
+    def global_sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.global_cov))
+
+    def global_correlation(self) -> np.ndarray:
+        s = self.global_sigma
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.global_cov / np.outer(s, s)
+
+    def value(self, name: str) -> tuple[float, float]:
+        i = self.global_names.index(name)
+        return float(self.global_values[i]), float(self.global_sigma[i])
+
+
+class _Layout:
+    def __init__(self, prob: BundleProblem, opt: BundleOptions):
+        self.intr_idx = np.flatnonzero(opt.free_intrinsics)
+        names = [PARAM_NAMES[i] for i in self.intr_idx]
+        self.n_intr = len(self.intr_idx)
+        self.lever = opt.estimate_lever_arm and len(prob.gnss_camera) > 0
+        self.delay = opt.estimate_delay and len(prob.gnss_camera) > 0
+        self.lever_col = len(names)
+        if self.lever:
+            names += ["lever_x", "lever_y", "lever_z"]
+        self.delay_col = len(names)
+        if self.delay:
+            names += ["delay"]
+        self.names = names
+        self.n_global = len(names)
+        self.n_cam = len(prob.centre_enu_m)
+        self.cam0 = self.n_global
+        self.nx = self.n_global + 6 * self.n_cam
+        self.n_pts = len(prob.points_enu_m)
+
+
+def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None):
+    R = prob.R_cam_to_enu if R is None else R
+    C = prob.centre_enu_m if C is None else C
+    X = prob.points_enu_m if X is None else X
+    intr = prob.intrinsics if intr is None else intr
+    Rw2c = np.transpose(R[prob.obs_camera], (0, 2, 1))
+    d = X[prob.obs_point] - C[prob.obs_camera]
+    p = np.einsum("mij,mj->mi", Rw2c, d)
+    return project_camera_points(p, intr), p, d, Rw2c
+
+
+def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None):
+    R = prob.R_cam_to_enu if R is None else R
+    C = prob.centre_enu_m if C is None else C
+    lever = prob.lever_arm_cam_m if lever is None else lever
+    delay = prob.delay_s if delay is None else delay
+    i = prob.gnss_camera
+    a = np.einsum("kij,j->ki", R[i], lever)
+    return C[i] - prob.antenna_enu_m - a - prob.antenna_velocity_enu_m_s * delay, a
+
+
+def _jacobi_scale(S: np.ndarray) -> np.ndarray:
+    d = np.diag(S)
+    return 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
+
+
+def _solve_scaled(S: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve S x = rhs after symmetric Jacobi scaling: the columns of the reduced normal matrix span
+    ten orders of magnitude (k3 against a focal length in pixels), which unscaled would lose the
+    ill-determined directions (lever arm z against f) to rounding."""
+    s = _jacobi_scale(S)
+    Ss = S * s[:, None] * s[None, :]
+    try:
+        y = np.linalg.solve(Ss, rhs * s)
+    except np.linalg.LinAlgError:
+        y = np.linalg.lstsq(Ss, rhs * s, rcond=None)[0]
+    return y * s
+
+
+def _inverse_scaled(S: np.ndarray) -> np.ndarray:
+    s = _jacobi_scale(S)
+    Ss = S * s[:, None] * s[None, :]
+    try:
+        inv = np.linalg.inv(Ss)
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(Ss)
+    return inv * s[:, None] * s[None, :]
+
+
+def _whiteners(cov: np.ndarray) -> np.ndarray:
+    """Upper factors U with U^T U = cov^-1, (n, 3, 3)."""
+    if len(cov) == 0:
+        return np.zeros((0, 3, 3))
+    inv = np.linalg.inv(cov)
+    Lc = np.linalg.cholesky(inv)
+    return np.transpose(Lc, (0, 2, 1))
+
+
+class BundleAdjuster:
+    def __init__(self, problem: BundleProblem, options: BundleOptions | None = None):
+        self.prob = problem
+        self.opt = options or BundleOptions()
+        self.lay = _Layout(problem, self.opt)
+        p = problem
+        if len(p.gnss_camera) + len(p.control_point) == 0:
+            raise ProcessingError("the adjustment needs GNSS camera positions or control points to define its datum")
+        if len(p.gnss_camera) == 0 and len(p.control_point) < 3:
+            raise ProcessingError(f"without GNSS camera positions at least 3 control points are needed "
+                                  f"(have {len(p.control_point)})")
+        gcov = np.asarray(p.antenna_cov_enu_m2, float).copy()
+        if len(gcov):
+            gcov = gcov + np.eye(3) * self.opt.min_gnss_sigma_m ** 2
+        self.gnss_cov_apriori = gcov
+        self.var = {"image": 1.0, "gnss": 1.0, "control": 1.0}
+        if self.opt.initial_variances:
+            self.var.update(self.opt.initial_variances)
+        self.w_obs = np.ones(len(p.obs_camera))
+        self.w_gnss = np.ones(len(p.gnss_camera))
+        self.w_ctl = np.ones(len(p.control_point))
+
+    # ----------------------------------------------------------------------------------- residuals
+    def _normalised(self, state=None):
+        p = self.prob
+        R, C, X, intr, lever, delay = state if state is not None else (
+            p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s)
+        uv, *_ = _reprojection(p, intr, R, C, X)
+        r_obs = (uv - p.obs_uv_px) / (p.obs_sigma_px * np.sqrt(self.var["image"]))[:, None]
+        Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
+        g, _ = _gnss_residual(p, R, C, lever, delay)
+        r_g = np.einsum("kij,kj->ki", Ug, g)
+        Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"])
+        r_c = np.einsum("qij,qj->qi", Uc, X[p.control_point] - p.control_enu_m)
+        self._r_prior = self._lever_prior_residual(lever)
+        return r_obs, r_g, r_c
+
+    def _lever_prior_residual(self, lever) -> np.ndarray:
+        p = self.prob
+        if not self.lay.lever or p.lever_arm_prior_cam_m is None:
+            return np.zeros(0)
+        return (np.asarray(lever) - p.lever_arm_prior_cam_m) / np.asarray(p.lever_arm_prior_sigma_m, float)
+
+    def _cost(self, r_obs, r_g, r_c) -> float:
+        return float(np.sum(self.w_obs * np.sum(r_obs ** 2, 1)) + np.sum(self.w_gnss * np.sum(r_g ** 2, 1))
+                     + np.sum(self.w_ctl * np.sum(r_c ** 2, 1)) + np.sum(self._r_prior ** 2))
+
+    @staticmethod
+    def _huber(norm: np.ndarray, k: float) -> np.ndarray:
+        w = np.ones_like(norm)
+        big = norm > k
+        w[big] = k / norm[big]
+        return w
+
+    # ----------------------------------------------------------------------------------- Jacobian
+    def _linearise(self):
+        p, lay = self.prob, self.lay
+        M = len(p.obs_camera)
+        uv, pc, d, Rw2c = _reprojection(p)
+        sig = p.obs_sigma_px * np.sqrt(self.var["image"])
+        r_obs = (uv - p.obs_uv_px) / sig[:, None]
+        sw = np.sqrt(self.w_obs) / sig  # row scale for the Jacobian
+        # d(uv)/d(p_cam) and d(uv)/d(intrinsics), central differences, vectorised over observations
+        Jp = np.empty((M, 2, 3))
+        h = 1e-6 * np.maximum(np.abs(pc[:, 2]), 1e-3)
+        for k in range(3):
+            dp = np.zeros_like(pc)
+            dp[:, k] = h
+            Jp[:, :, k] = (project_camera_points(pc + dp, p.intrinsics) - project_camera_points(pc - dp, p.intrinsics)) / (2 * h)[:, None]
+        Ji = np.empty((M, 2, lay.n_intr))
+        for c, k in enumerate(lay.intr_idx):
+            e = np.zeros(8)
+            e[k] = _INTR_STEP[k]
+            Ji[:, :, c] = (project_camera_points(pc, p.intrinsics + e) - project_camera_points(pc, p.intrinsics - e)) / (2 * _INTR_STEP[k])
+        JX = np.einsum("mij,mjk->mik", Jp, Rw2c)
+        Jrot = np.einsum("mij,mjk->mik", JX, skew(d))
+        JX *= sw[:, None, None]
+        Jrot *= sw[:, None, None]
+        Ji *= sw[:, None, None]
+        rows_r = (np.sqrt(self.w_obs)[:, None] * r_obs).reshape(-1)
+
+        # sparse assembly of the x-part (global + cameras) and the point blocks
+        rows, cols, vals = [], [], []
+        obs_rows = np.arange(M)[:, None] * 2 + np.arange(2)[None, :]  # (M, 2)
+        if lay.n_intr:
+            rows.append(np.repeat(obs_rows[:, :, None], lay.n_intr, 2).reshape(-1))
+            cols.append(np.broadcast_to(np.arange(lay.n_intr), (M, 2, lay.n_intr)).reshape(-1))
+            vals.append(Ji.reshape(-1))
+        cam_cols = lay.cam0 + 6 * p.obs_camera
+        rows.append(np.repeat(obs_rows[:, :, None], 6, 2).reshape(-1))
+        cols.append((cam_cols[:, None, None] + np.arange(6)[None, None, :]).repeat(2, 1).reshape(-1))
+        vals.append(np.concatenate([Jrot, -JX], axis=2).reshape(-1))
+        n_rows = 2 * M
+        r_all = [rows_r]
+
+        # GNSS rows
+        K = len(p.gnss_camera)
+        Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
+        if K:
+            g, a = _gnss_residual(p)
+            sqw = np.sqrt(self.w_gnss)[:, None, None]
+            U = Ug * sqw
+            r_all.append(np.einsum("kij,kj->ki", U, g).reshape(-1))
+            g_rows = n_rows + np.arange(K)[:, None] * 3 + np.arange(3)[None, :]
+            ccols = lay.cam0 + 6 * p.gnss_camera
+            blk = np.concatenate([np.einsum("kij,kjl->kil", U, skew(a)), U], axis=2)  # rot, centre
+            rows.append(np.repeat(g_rows[:, :, None], 6, 2).reshape(-1))
+            cols.append((ccols[:, None, None] + np.arange(6)[None, None, :]).repeat(3, 1).reshape(-1))
+            vals.append(blk.reshape(-1))
+            if lay.lever:
+                JL = -np.einsum("kij,kjl->kil", U, p.R_cam_to_enu[p.gnss_camera])
+                rows.append(np.repeat(g_rows[:, :, None], 3, 2).reshape(-1))
+                cols.append(np.broadcast_to(lay.lever_col + np.arange(3), (K, 3, 3)).reshape(-1))
+                vals.append(JL.reshape(-1))
+            if lay.delay:
+                Jd = -np.einsum("kij,kj->ki", U, p.antenna_velocity_enu_m_s)
+                rows.append(g_rows.reshape(-1))
+                cols.append(np.full(3 * K, lay.delay_col))
+                vals.append(Jd.reshape(-1))
+            n_rows += 3 * K
+        rp = self._lever_prior_residual(p.lever_arm_cam_m)
+        if len(rp):
+            r_all.append(rp)
+            rows.append(n_rows + np.arange(3))
+            cols.append(lay.lever_col + np.arange(3))
+            vals.append(1.0 / np.asarray(p.lever_arm_prior_sigma_m, float))
+            n_rows += 3
+        Jx = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_rows + 3 * len(p.control_point), lay.nx))
+
+        # point part: per-observation 2x3 blocks (JX) and control priors
+        Q = len(p.control_point)
+        Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"])
+        prow = np.repeat(obs_rows[:, :, None], 3, 2).reshape(-1)
+        pcol = (3 * p.obs_point[:, None, None] + np.arange(3)[None, None, :]).repeat(2, 1).reshape(-1)
+        pval = JX.reshape(-1)
+        if Q:
+            Ucw = Uc * np.sqrt(self.w_ctl)[:, None, None]
+            Xc = p.points_enu_m[p.control_point]
+            r_all.append(np.einsum("qij,qj->qi", Ucw, Xc - p.control_enu_m).reshape(-1))
+            c_rows = n_rows + np.arange(Q)[:, None] * 3 + np.arange(3)[None, :]
+            prow = np.concatenate([prow, np.repeat(c_rows[:, :, None], 3, 2).reshape(-1)])
+            pcol = np.concatenate([pcol, (3 * p.control_point[:, None, None] + np.arange(3)[None, None, :]).repeat(3, 1).reshape(-1)])
+            pval = np.concatenate([pval, Ucw.reshape(-1)])
+            n_rows += 3 * Q
+        Jpts = sp.csr_matrix((pval, (prow, pcol)), shape=(n_rows, 3 * lay.n_pts))
+        # D blocks
+        D = np.zeros((lay.n_pts, 3, 3))
+        np.add.at(D, p.obs_point, np.einsum("mki,mkj->mij", JX, JX))
+        if Q:
+            np.add.at(D, p.control_point, np.einsum("qki,qkj->qij", Ucw, Ucw))
+        r = np.concatenate(r_all)
+        return Jx, Jpts, D, r
+
+    # ----------------------------------------------------------------------------------- solve
+    def _solve_step(self, Jx, Jpts, D, r, lam: float):
+        lay = self.lay
+        A = (Jx.T @ Jx).toarray()
+        B = (Jx.T @ Jpts).tocsr()
+        bx = Jx.T @ r
+        bp = Jpts.T @ r
+        A_d = A + lam * np.diag(np.maximum(np.diag(A), 1e-9))
+        Dd = D + lam * np.maximum(np.einsum("pii->pi", D), 1e-9)[:, :, None] * np.eye(3)[None]
+        Dd = Dd + np.eye(3)[None] * 1e-12
+        Dinv = np.linalg.inv(Dd)
+        Dinv_sp = sp.bsr_matrix((Dinv, np.arange(lay.n_pts), np.arange(lay.n_pts + 1)), shape=(3 * lay.n_pts, 3 * lay.n_pts)).tocsr()
+        BD = B @ Dinv_sp
+        S = A_d - (BD @ B.T).toarray()
+        rhs = -(bx - BD @ bp)
+        dx = _solve_scaled(S, rhs)
+        dp = Dinv_sp @ (-bp - B.T @ dx)
+        return dx, dp, S, Dinv, B
+
+    def _apply(self, dx, dp):
+        p, lay = self.prob, self.lay
+        intr = p.intrinsics.copy()
+        intr[lay.intr_idx] += dx[:lay.n_intr]
+        lever = p.lever_arm_cam_m.copy()
+        if lay.lever:
+            lever += dx[lay.lever_col:lay.lever_col + 3]
+        delay = p.delay_s + (dx[lay.delay_col] if lay.delay else 0.0)
+        cam = dx[lay.cam0:].reshape(-1, 6)
+        R = Rotation.from_rotvec(cam[:, :3]).as_matrix() @ p.R_cam_to_enu
+        C = p.centre_enu_m + cam[:, 3:]
+        X = p.points_enu_m + dp.reshape(-1, 3)
+        return R, C, X, intr, lever, float(delay)
+
+    def _commit(self, state):
+        p = self.prob
+        p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s = state
+
+    def _reweight(self):
+        r_obs, r_g, r_c = self._normalised()
+        k = self.opt.huber_k
+        self.w_obs = self._huber(np.linalg.norm(r_obs, axis=1) / np.sqrt(2), k)
+        self.w_gnss = self._huber(np.linalg.norm(r_g, axis=1) / np.sqrt(3), k) if len(r_g) else self.w_gnss
+        self.w_ctl = self._huber(np.linalg.norm(r_c, axis=1) / np.sqrt(3), k) if len(r_c) else self.w_ctl
+
+    def _iterate(self, max_iter: int) -> tuple[int, bool]:
+        lam = 1e-4
+        cost = self._cost(*self._normalised())
+        it = 0
+        converged = False
+        while it < max_iter:
+            it += 1
+            Jx, Jpts, D, r = self._linearise()
+            dx, dp, *_ = self._solve_step(Jx, Jpts, D, r, lam)
+            state = self._apply(dx, dp)
+            new_cost = self._cost(*self._normalised(state))
+            if new_cost < cost:
+                self._commit(state)
+                rel = (cost - new_cost) / max(cost, 1e-12)
+                cost = new_cost
+                lam = max(lam / 5, 1e-9)
+                if rel < self.opt.tolerance:
+                    converged = True
+                    break
+            else:
+                lam *= 10
+                if lam > 1e6:
+                    converged = True  # no further decrease possible
+                    break
+        return it, converged
+
+    def run(self) -> BundleResult:
+        opt = self.opt
+        iters, converged = self._iterate(opt.max_iterations)
+        # rounds of robust reweighting and variance-component estimation, each followed by re-solving
+        for k in range(3):
+            if opt.variance_components and k > 0:
+                self._variance_components()
+            self._reweight()
+            i2, converged = self._iterate(opt.max_iterations)
+            iters += i2
+        return self._result(iters, converged)
+
+    # ----------------------------------------------------------------------------------- statistics
+    def _covariances(self):
+        Jx, Jpts, D, r = self._linearise()
+        _, _, S, Dinv, B = self._solve_step(Jx, Jpts, D, r, 0.0)
+        return _inverse_scaled(S), Dinv, B
+
+    def _variance_components(self):
+        """Group variance factors from the residuals and the groups' redundancy numbers."""
+        p, lay = self.prob, self.lay
+        r_obs, r_g, r_c = self._normalised()
+        Sinv, Dinv, B = self._covariances()
+        K, Q = len(p.gnss_camera), len(p.control_point)
+        n_obs = 2 * len(p.obs_camera)
+        # hat-matrix traces of the GNSS and control rows (their parameters' marginal covariances are known)
+        h_g = 0.0
+        if K:
+            Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"]) * np.sqrt(self.w_gnss)[:, None, None]
+            _, a = _gnss_residual(p)
+            for k in range(K):
+                i = p.gnss_camera[k]
+                cols = list(range(lay.cam0 + 6 * i, lay.cam0 + 6 * i + 6))
+                J = np.concatenate([Ug[k] @ skew(a[k][None])[0], Ug[k]], axis=1)
+                if lay.lever:
+                    cols += list(range(lay.lever_col, lay.lever_col + 3))
+                    J = np.concatenate([J, -Ug[k] @ p.R_cam_to_enu[i]], axis=1)
+                if lay.delay:
+                    cols.append(lay.delay_col)
+                    J = np.concatenate([J, -(Ug[k] @ p.antenna_velocity_enu_m_s[k])[:, None]], axis=1)
+                h_g += float(np.trace(J @ Sinv[np.ix_(cols, cols)] @ J.T))
+        h_c = 0.0
+        if Q:
+            Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"]) * np.sqrt(self.w_ctl)[:, None, None]
+            Bd = B.toarray() if B.shape[1] <= 3 * 2000 else None
+            for q in range(Q):
+                j = p.control_point[q]
+                Cp = self._point_cov(j, Sinv, Dinv, B, Bd)
+                h_c += float(np.trace(Uc[q] @ Cp @ Uc[q].T))
+        u = lay.nx + 3 * lay.n_pts
+        h_o = max(u - h_g - h_c, 0.0)
+        red_o = max(n_obs - h_o, 1.0)
+        red_g = max(3 * K - h_g, 1.0)
+        red_c = max(3 * Q - h_c, 1.0)
+        s_o = float(np.sum(self.w_obs * np.sum(r_obs ** 2, 1))) / red_o
+        self.var["image"] *= s_o
+        if K:
+            self.var["gnss"] *= float(np.sum(self.w_gnss * np.sum(r_g ** 2, 1))) / red_g
+        if Q and red_c > 2.0:
+            # few control points carry little information on their own variance: only update when
+            # they have a real redundancy
+            self.var["control"] *= float(np.sum(self.w_ctl * np.sum(r_c ** 2, 1))) / red_c
+
+    @staticmethod
+    def _point_cov(j, Sinv, Dinv, B, Bd=None) -> np.ndarray:
+        Bj = (Bd[:, 3 * j:3 * j + 3] if Bd is not None else B[:, 3 * j:3 * j + 3].toarray())
+        Dj = Dinv[j]
+        return Dj + Dj @ Bj.T @ Sinv @ Bj @ Dj
+
+    def _result(self, iters: int, converged: bool) -> BundleResult:
+        p, lay = self.prob, self.lay
+        Sinv, Dinv, B = self._covariances()
+        r_obs, r_g, r_c = self._normalised()
+        uv, *_ = _reprojection(p)
+        res_px = uv - p.obs_uv_px
+        k_out = self.opt.outlier_k
+        obs_out = np.linalg.norm(r_obs, axis=1) / np.sqrt(2) > k_out
+        gnss_out = np.linalg.norm(r_g, axis=1) / np.sqrt(3) > k_out if len(r_g) else np.zeros(0, bool)
+        ok = ~obs_out
+        rms = float(np.sqrt(np.mean(np.sum(res_px[ok] ** 2, 1)))) if ok.any() else float("nan")
+        g_vals = np.concatenate([p.intrinsics[lay.intr_idx],
+                                 p.lever_arm_cam_m if lay.lever else [],
+                                 [p.delay_s] if lay.delay else []])
+        G = lay.n_global
+        cam_cov = np.stack([Sinv[lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6, lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6]
+                            for i in range(lay.n_cam)])
+        g, _ = _gnss_residual(p)
+        pcov = {int(j): self._point_cov(int(j), Sinv, Dinv, B) for j in p.control_point}
+        sig0 = {k: float(np.sqrt(v)) for k, v in self.var.items()}
+        return BundleResult(problem=p, iterations=iters, converged=converged, rms_reprojection_px=rms, sigma0=sig0,
+                            global_names=list(lay.names), global_values=g_vals, global_cov=Sinv[:G, :G].copy(),
+                            camera_cov=cam_cov, obs_outlier=obs_out, gnss_outlier=gnss_out, gnss_residual_enu_m=g,
+                            obs_residual_px=res_px, point_cov_enu_m2=pcov)
+
+
+def adjust(problem: BundleProblem, options: BundleOptions | None = None) -> BundleResult:
+    """Run the adjustment in place on ``problem`` and return the statistics."""
+    return BundleAdjuster(problem, options).run()

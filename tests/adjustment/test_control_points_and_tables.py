@@ -1,0 +1,172 @@
+"""Ground/check point input (ODM gcp_list.txt, points CSV in any CRS), triangulation with blunder
+detection, target refinement and the residual table, each against constructed truth."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from georef_core.adjustment.control_points import (ImageMeasurement, load_control, parse_crs, points_to_enu,
+                                                    read_gcp_list, read_points_csv)
+from georef_core.adjustment.residual_table import ResidualRow, ResidualTable
+from georef_core.adjustment.target_refinement import refine_measurements
+from georef_core.adjustment.triangulation import find_blunders, triangulate
+from georef_core.errors import InputFileError
+from georef_core.project_frame import ProjectFrame
+
+INTR = np.array([1000.0, 640.0, 480.0, -0.05, 0.01, 0.0, 0.0, 0.0])
+
+
+def test_gcp_list_with_odm_utm_header_and_unnamed_points(tmp_path):
+    p = tmp_path / "gcp_list.txt"
+    p.write_text("WGS84 UTM 11N\n"
+                 "500010.0 3700020.0 101.5 100.5 200.25 IMG_1.jpg\n"
+                 "500010.0 3700020.0 101.5 300.0 210.0 IMG_2.jpg\n"
+                 "500050.0 3700060.0 99.0 50.0 60.0 IMG_1.jpg gcp_b\n")
+    crs, points, meas = read_gcp_list(p)
+    assert crs == "EPSG:32611"
+    assert sorted(points) == ["gcp01", "gcp_b"]
+    assert [m.point for m in meas] == ["gcp01", "gcp01", "gcp_b"]
+    np.testing.assert_allclose(meas[0].uv_px, [100.5, 200.25])
+    assert meas[2].source == "gcp_list.txt:4"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("EPSG:999999\n1 2 3 4 5 a.jpg\n", "unknown coordinate reference system"),
+    ("EPSG:32611\n1 2 3 4 a.jpg\n", "expected 'x y z px py image"),
+    ("EPSG:32611\n1 2 x 4 5 a.jpg\n", "not a number"),
+    ("EPSG:32611\n1 2 3 4 5 a.jpg p1\n1 2 4 4 5 b.jpg p1\n", "two different coordinates"),
+    ("", "empty"),
+])
+def test_gcp_list_errors_name_the_file(tmp_path, text, message):
+    p = tmp_path / "gcp_list.txt"
+    p.write_text(text)
+    with pytest.raises(InputFileError, match=message) as exc:
+        read_gcp_list(p)
+    assert "gcp_list.txt" in str(exc.value)
+
+
+def test_points_csv_roles_and_errors(tmp_path):
+    p = tmp_path / "points.csv"
+    p.write_text("name,easting_m,northing_m,ellipsoidal_height_m,role\n"
+                 "A,500000,3700000,100,control\nB,500100,3700000,101,check\nC,500100,3700100,102,\n")
+    pts = read_points_csv(p, "EPSG:32611")
+    assert {k: v.role for k, v in pts.items()} == {"A": "control", "B": "check", "C": "check"}
+    p.write_text("name,easting_m,northing_m,ellipsoidal_height_m\nA,500000,3700000,abc\n")
+    with pytest.raises(InputFileError, match="line 2"):
+        read_points_csv(p, "EPSG:32611")
+    p.write_text("name,foo,bar\nA,1,2\n")
+    with pytest.raises(InputFileError, match="needs columns"):
+        read_points_csv(p, "EPSG:32611")
+    with pytest.raises(InputFileError, match="CRS of the point file is unknown"):
+        load_control(points_csv=p)
+
+
+def test_points_csv_and_gcp_list_merge_csv_wins(tmp_path):
+    g = tmp_path / "gcp_list.txt"
+    g.write_text("EPSG:32611\n500000 3700000 100 10 10 a.jpg P9\n500000 3700000 100 12 10 b.jpg P9\n")
+    c = tmp_path / "points.csv"
+    c.write_text("name,x,y,z,role\nP1,500000,3700010,100,control\nP9,500000.002,3700000,100.01,check\n")
+    data = load_control(points_csv=c, gcp_list=g)   # the CRS of the CSV is the gcp list's
+    assert set(data.points) == {"P1", "P9"}
+    assert data.points["P9"].role == "check" and data.points["P9"].xyz_crs[2] == pytest.approx(100.01)
+    assert len(data.measurements_of("P9")) == 2 and data.measurements_of("P1") == []
+
+
+def test_same_point_in_utm_and_geographic_gives_the_same_enu():
+    from pyproj import Transformer
+
+    from georef_core.adjustment.control_points import GroundPoint
+
+    frame = ProjectFrame(32611, 500000.0, 3762000.0, 300.0)
+    e, n, h = 500123.4, 3762345.6, 312.3
+    lon, lat = Transformer.from_crs("EPSG:32611", "EPSG:4326", always_xy=True).transform(e, n)
+    a = points_to_enu([GroundPoint("u", np.array([e, n, h]), "EPSG:32611")], frame)[0]
+    b = points_to_enu([GroundPoint("g", np.array([lon, lat, h]), "EPSG:4326")], frame)[0]
+    assert np.linalg.norm(a - b) < 1e-3
+    assert parse_crs("wgs84 utm 33s") == "EPSG:32733"
+
+
+def _cameras(n=6):
+    """Nadir cameras 50 m above a point at the origin, in a ring (ENU, camera z down)."""
+    R = np.array([np.diag([1.0, -1.0, -1.0])] * n)
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    C = np.column_stack([15 * np.cos(ang), 15 * np.sin(ang), np.full(n, 50.0)])
+    return R, C
+
+
+def _project(X, R, C):
+    from georef_core.adjustment.camera_model import project_camera_points
+
+    pc = np.einsum("nji,nj->ni", R, X[None] - C)
+    return project_camera_points(pc, INTR)
+
+
+def test_triangulation_recovers_the_point_and_names_a_blunder():
+    rng = np.random.default_rng(0)
+    R, C = _cameras()
+    X = np.array([1.0, -2.0, 0.5])
+    uv = _project(X, R, C) + rng.normal(0, 0.2, (len(C), 2))
+    t = triangulate(uv, np.arange(len(C)), R, C, INTR)
+    assert np.linalg.norm(t.xyz_enu_m - X) < 0.02
+    assert np.all(np.linalg.norm(t.residual_px, axis=1) < 1.0)
+    names = [f"IMG_{k}.jpg" for k in range(len(C))]
+    uv_bad = uv.copy()
+    uv_bad[3] += [25.0, -12.0]                           # a click on the wrong target
+    keep, reports = find_blunders("gcp04", names, uv_bad, np.arange(len(C)), R, C, INTR)
+    assert len(reports) == 1 and reports[0].image == "IMG_3.jpg"
+    assert "gcp04" in reports[0].message and 3 not in keep
+    assert reports[0].residual_px > 20
+    keep, reports = find_blunders("gcp04", names, uv, np.arange(len(C)), R, C, INTR)
+    assert reports == [] and keep == list(range(len(C)))
+
+
+def _checker_image(path, centre_uv, size=(120, 100)):
+    """A black/white checker target, antialiased by supersampling, centred at a sub-pixel position."""
+    ss = 8
+    w, h = size
+    yy, xx = np.mgrid[0:h * ss, 0:w * ss]
+    u = (xx + 0.5) / ss - 0.5 - centre_uv[0]
+    v = (yy + 0.5) / ss - 0.5 - centre_uv[1]
+    img = np.where((u > 0) ^ (v > 0), 230.0, 25.0)
+    img = img.reshape(h, ss, w, ss).mean(axis=(1, 3))
+    Image.fromarray(img.astype(np.uint8)).save(path)
+
+
+def test_target_refinement_moves_a_click_onto_the_checker_centre(tmp_path):
+    rng = np.random.default_rng(1)
+    truths, meas = [], []
+    for k in range(5):
+        c = np.array([60.0, 50.0]) + rng.uniform(-3, 3, 2)
+        _checker_image(tmp_path / f"t{k}.png", c)
+        truths.append(c)
+        meas.append(ImageMeasurement("p", f"t{k}.png", c + rng.normal(0, 0.4, 2)))
+    before = np.array([np.linalg.norm(m.uv_px - t) for m, t in zip(meas, truths)])
+    n_ref, n_keep = refine_measurements(tmp_path, meas)
+    after = np.array([np.linalg.norm(m.uv_px - t) for m, t in zip(meas, truths)])
+    assert n_ref == 5 and n_keep == 0
+    assert np.sqrt(np.mean(after ** 2)) < 0.1 < np.sqrt(np.mean(before ** 2))
+    # a uniform patch is not a target: the click is kept as it was
+    Image.fromarray(np.full((100, 120), 128, np.uint8)).save(tmp_path / "flat.png")
+    m = ImageMeasurement("q", "flat.png", np.array([60.3, 50.2]))
+    assert refine_measurements(tmp_path, [m]) == (0, 1)
+    np.testing.assert_allclose(m.uv_px, [60.3, 50.2])
+
+
+def test_residual_table_statistics_and_files(tmp_path):
+    rows = [ResidualRow("a", "check", 0.01, -0.02, 0.03, float(np.linalg.norm([0.01, -0.02, 0.03])), 4),
+            ResidualRow("b", "check", -0.01, 0.00, 0.01, float(np.linalg.norm([-0.01, 0, 0.01])), 5)]
+    t = ResidualTable("check points", "EPSG:32611", rows)
+    st = t.stats()
+    assert st["n"] == 2
+    assert st["dx"]["mean_m"] == pytest.approx(0.0)
+    assert st["dx"]["std_m"] == pytest.approx(np.std([0.01, -0.01], ddof=1))
+    assert st["dz"]["rmse_m"] == pytest.approx(np.sqrt((0.03 ** 2 + 0.01 ** 2) / 2))
+    assert st["3d"]["rmse_m"] == pytest.approx(np.sqrt((0.01 ** 2 + 0.02 ** 2 + 0.03 ** 2 + 0.01 ** 2 + 0.01 ** 2) / 2))
+    t.write(tmp_path / "r.json", tmp_path / "r.csv")
+    back = json.loads((tmp_path / "r.json").read_text())
+    assert back["statistics"]["n"] == 2 and back["points"][0]["name"] == "a"
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    assert lines[0].startswith("point,role,dx_m") and lines[1].startswith("a,check,0.0100,-0.0200,0.0300")
+    assert "RMSE" in t.format_text()
