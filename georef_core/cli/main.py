@@ -11,12 +11,10 @@ from ..errors import GeorefError
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="georef", description="Directly georeferenced drone surveys.")
     sub = parser.add_subparsers(dest="command", required=True)
-    from . import gnss_commands, demo_command
-    from . import simulate_command
+    from . import dense_command, demo_command, georef_command, gnss_commands, simulate_command, volume_command
 
-    gnss_commands.register(sub)
-    demo_command.register(sub)
-    simulate_command.register(sub)
+    for command in (gnss_commands, simulate_command, georef_command, dense_command, volume_command, demo_command):
+        command.register(sub)
     args = parser.parse_args(argv)
     import warnings
 

@@ -1,0 +1,725 @@
+"""Step: georeferencing of a survey's photos (`georef georef SURVEY_DIR --out OUT_DIR`).
+
+1. PPK of the drone's GNSS (``OUT_DIR/ppk``, reused when present) -> antenna position, velocity and
+   covariance at each camera trigger.
+2. SfM with pycolmap (``OUT_DIR/sfm``, reused when present and made with the same options).
+3. The images are tied to their triggers (events.csv names, else the receiver's event records in the
+   order of the images' EXIF times).
+4. Adjustment in one of three modes (Daakir et al. 2015):
+   ``joint`` (c) bundle adjustment of tie points, GNSS camera positions with their covariances, lever
+   arm, delay, self-calibration and control points together; ``gcp`` (a) orientation from control
+   points, then lever arm + delay from the GNSS positions; ``similarity`` (b) a 7-parameter similarity +
+   delay from the GNSS positions with a known lever arm, no control.
+5. Control points' image measurements are screened for blunders; check points are triangulated and
+   compared with their surveyed coordinates (residual table), control points by leave-one-out.
+6. Outputs: ``oriented_images.json``, ``residuals.json/.csv``, ``control_loo.json/.csv``,
+   ``lever_arm_delay.json``, ``georef_summary.json``, ``sparse_points.ply``, ``plots/``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..adjustment import camera_model as cm
+from ..adjustment.bundle_adjustment import BundleOptions, BundleProblem, adjust
+from ..adjustment.control_points import ControlData, load_control, point_sigma_enu_cov, points_to_enu
+from ..adjustment.lever_arm_delay import estimate_lever_arm_delay, fit_similarity_delay
+from ..adjustment.residual_table import ResidualRow, ResidualTable
+from ..adjustment.triangulation import find_blunders, triangulate
+from ..errors import InputFileError, ProcessingError
+from ..progress import ProgressFn
+from ..project_frame import ProjectFrame, utm_epsg_for
+
+MODES = ("joint", "gcp", "similarity")
+SFM_MODELS = {"radial": "RADIAL", "brown": "OPENCV", "fisheye": "OPENCV_FISHEYE"}
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
+
+
+@dataclass
+class GeorefOptions:
+    mode: str = "joint"                       # joint (c) | gcp (a) | similarity (b)
+    camera_model: str = "brown"               # radial | brown | fisheye (fisheye: SfM only)
+    lever_arm_cam_m: tuple[float, float, float] | None = None  # known lever arm (needed by 'similarity')
+    estimate_lever_arm: bool | None = None    # default: True unless a lever arm is given without a sigma
+    lever_arm_sigma_m: float | None = None    # a given lever arm is a weighted prior with this sigma (else fixed)
+    estimate_delay: bool = True
+    delay_s: float = 0.0                      # a-priori / fixed delay
+    control: str | None = None                # 'all', 'none' or comma-separated names (default: roles in the file)
+    check: str | None = None                  # comma-separated names made check points
+    points_crs: str | None = None             # CRS of gcp/points.csv (default survey.json, else the gcp_list's)
+    project_epsg: int | None = None           # project CRS (default survey.json, else UTM of the site)
+    sigma_px: float = 1.0                     # a-priori tie-point measurement sigma
+    gcp_sigma_px: float = 1.0                 # a-priori sigma of the clicked target measurements
+    gcp_sigma_m: tuple[float, float] = (0.01, 0.02)  # survey sigma of control points (horizontal, vertical)
+    max_tie_points: int = 8000                # tie points in the adjustment (spatially even subset)
+    reuse: bool = True                        # reuse OUT_DIR/ppk and OUT_DIR/sfm when present
+    num_threads: int = 2
+    gnss_options: dict = field(default_factory=dict)
+    blunder_threshold_px: float = 5.0
+    refine_targets: bool = True               # sub-pixel refinement of clicked checker-target centres
+    leave_one_out: bool = True
+
+
+def _image_names(image_dir: Path) -> list[str]:
+    if not image_dir.is_dir():
+        raise InputFileError(image_dir, "the survey has no images/ folder")
+    names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not names:
+        raise InputFileError(image_dir, "no JPEG/TIFF images found")
+    return names
+
+
+# ------------------------------------------------------------------------------------------- GNSS at images
+
+@dataclass
+class ImageGnss:
+    """Antenna state at the trigger of each image that has one (ECEF)."""
+    names: list[str]
+    trigger_gps_time_s: np.ndarray
+    position_ecef_m: np.ndarray
+    velocity_ecef_m_s: np.ndarray
+    sd_ecef_m: np.ndarray
+    status: np.ndarray
+    source: str
+    warnings: list[str] = field(default_factory=list)
+
+
+def _read_ppk_events(path: Path) -> dict[str, np.ndarray]:
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    g = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
+    return {"t": g("gps_time_s"), "status": g("status").astype(int),
+            "pos": np.column_stack([g("x_ecef_m"), g("y_ecef_m"), g("z_ecef_m")]),
+            "vel": np.column_stack([g("vx_ecef_m_s"), g("vy_ecef_m_s"), g("vz_ecef_m_s")]),
+            "sd": np.column_stack([g("sd_x_m"), g("sd_y_m"), g("sd_z_m")])}
+
+
+def _survey_events(path: Path) -> dict[str, float]:
+    """image name -> trigger GPS time from a survey events.csv (columns image, trigger_gps_time_s)."""
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows or "image" not in rows[0] or not any(k in rows[0] for k in ("trigger_gps_time_s", "gps_time_s")):
+        raise InputFileError(path, "events.csv needs the columns image and trigger_gps_time_s")
+    key = "trigger_gps_time_s" if "trigger_gps_time_s" in rows[0] else "gps_time_s"
+    return {r["image"]: float(r[key]) for r in rows}
+
+
+def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_csv: Path) -> ImageGnss:
+    ev = _read_ppk_events(ppk_events_csv)
+    warnings: list[str] = []
+    ev_csv = survey_dir / "events.csv"
+    if ev_csv.is_file():
+        times = _survey_events(ev_csv)
+        names, idx = [], []
+        for name in image_names:
+            if name not in times:
+                warnings.append(f"{name}: no trigger time in {ev_csv.name}; the image is used without GNSS")
+                continue
+            k = int(np.argmin(np.abs(ev["t"] - times[name])))
+            if abs(ev["t"][k] - times[name]) > 1e-3:
+                warnings.append(f"{name}: its trigger time has no PPK event; the image is used without GNSS")
+                continue
+            names.append(name)
+            idx.append(k)
+        source = f"{ev_csv.name} (image names) matched to the PPK events"
+    else:
+        from ..photo.images import read_image_info
+
+        infos = []
+        for name in image_names:
+            info = read_image_info(survey_dir / "images" / name)
+            infos.append((info.time_utc.timestamp() if getattr(info, "time_utc", None) else None, name))
+        if len(ev["t"]) != len(image_names):
+            raise InputFileError(survey_dir / "images", f"{len(image_names)} images but {len(ev['t'])} camera events in "
+                                 f"the rover's log and no events.csv to say which is which; give events.csv "
+                                 f"(image, trigger_gps_time_s)")
+        if any(t is None for t, _ in infos):
+            order = list(image_names)
+            warnings.append("images without EXIF time: events matched in file-name order")
+        else:
+            order = [n for _, n in sorted(infos)]
+        names, idx = order, list(range(len(order)))
+        source = "rover event records, in the order of the images' EXIF times"
+    idx = np.asarray(idx, int)
+    return ImageGnss(names, ev["t"][idx], ev["pos"][idx], ev["vel"][idx], ev["sd"][idx], ev["status"][idx], source,
+                     warnings)
+
+
+# ------------------------------------------------------------------------------------------- roles
+
+def apply_roles(control: ControlData, control_opt: str | None, check_opt: str | None) -> None:
+    names = set(control.points)
+    if control_opt:
+        if control_opt == "all":
+            sel = names
+        elif control_opt == "none":
+            sel = set()
+        else:
+            sel = {s.strip() for s in control_opt.split(",") if s.strip()}
+            unknown = sel - names
+            if unknown:
+                raise InputFileError("--control", f"unknown point(s): {', '.join(sorted(unknown))}")
+        for n, p in control.points.items():
+            p.role = "control" if n in sel else "check"
+    if check_opt:
+        sel = {s.strip() for s in check_opt.split(",") if s.strip()}
+        unknown = sel - names
+        if unknown:
+            raise InputFileError("--check", f"unknown point(s): {', '.join(sorted(unknown))}")
+        for n in sel:
+            control.points[n].role = "check"
+
+
+# ------------------------------------------------------------------------------------------- the step
+
+def _project_frame(opts: GeorefOptions, meta: dict, control: ControlData, gnss: ImageGnss | None) -> ProjectFrame:
+    from ..gnss.frames import ecef_to_geodetic
+
+    epsg = opts.project_epsg
+    if epsg is None and str(meta.get("project_crs", "")).upper().startswith("EPSG:"):
+        epsg = int(str(meta["project_crs"]).split(":")[1])
+    if gnss is not None and len(gnss.names):
+        llh = ecef_to_geodetic(gnss.position_ecef_m.mean(axis=0))
+    elif control.points:
+        from pyproj import CRS, Transformer
+
+        p = next(iter(control.points.values()))
+        tr = Transformer.from_crs(CRS.from_user_input(p.crs), "EPSG:4326", always_xy=True)
+        xy = np.array([q.xyz_crs[:2] for q in control.points.values()]).mean(axis=0)
+        lon, lat = tr.transform(xy[0], xy[1])
+        llh = np.array([np.radians(lat), np.radians(lon), np.mean([q.xyz_crs[2] for q in control.points.values()])])
+    else:
+        raise ProcessingError("neither GNSS camera positions nor ground control points: nothing to georeference with")
+    lat, lon, h = float(np.degrees(llh[0])), float(np.degrees(llh[1])), float(llh[2])
+    if epsg is None:
+        epsg = utm_epsg_for(lat, lon)
+    from pyproj import Transformer
+
+    e, n = Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(lon, lat)
+    return ProjectFrame(epsg=int(epsg), origin_e=round(float(e), 1), origin_n=round(float(n), 1), h_ref=round(h, 1))
+
+
+def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progress: ProgressFn | None = None) -> dict:
+    from ..photo.sfm import SfmOptions, run_sfm
+    from .gnss_solve import read_survey_json, run_survey_gnss
+
+    opts = options or GeorefOptions()
+    if opts.mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}")
+    survey_dir, out = Path(survey_dir), Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    warnings: list[str] = []
+    report = progress or (lambda *a: None)
+    meta = read_survey_json(survey_dir)
+    image_names = _image_names(survey_dir / "images")
+
+    # ---- control points
+    gcp_dir = survey_dir / "gcp"
+    points_csv = gcp_dir / "points.csv" if (gcp_dir / "points.csv").is_file() else None
+    gcp_list = gcp_dir / "gcp_list.txt" if (gcp_dir / "gcp_list.txt").is_file() else None
+    control = load_control(points_csv, gcp_list, opts.points_crs or meta.get("points_crs"))
+    for p in control.points.values():
+        p.sigma_m = tuple(opts.gcp_sigma_m)
+    apply_roles(control, opts.control, opts.check)
+    target_refinement = None
+    if opts.refine_targets and control.measurements:
+        from ..adjustment.target_refinement import refine_measurements
+
+        n_ref, n_keep = refine_measurements(survey_dir / "images", control.measurements)
+        target_refinement = {"refined": n_ref, "kept_as_clicked": n_keep}
+    missing_imgs = sorted({m.image for m in control.measurements} - set(image_names))
+    if missing_imgs:
+        warnings.append(f"{gcp_list}: measurements in images that are not in images/: {', '.join(missing_imgs)} (ignored)")
+
+    # ---- GNSS
+    t0 = time.perf_counter()
+    gnss = None
+    if (survey_dir / "rover").is_dir():
+        report("gnss", 0, 1)
+        ev_csv = out / "ppk" / "events.csv"
+        if not (opts.reuse and ev_csv.is_file()):
+            run_survey_gnss(survey_dir, out, opts.gnss_options)
+        if ev_csv.is_file():
+            gnss = match_images_to_events(survey_dir, image_names, ev_csv)
+            warnings += gnss.warnings
+        else:
+            warnings.append("the PPK solution has no camera events: images are not tied to GNSS positions")
+        report("gnss", 1, 1)
+    timings["gnss_s"] = time.perf_counter() - t0
+    if opts.mode in ("joint", "similarity") and gnss is None:
+        if opts.mode == "similarity":
+            raise ProcessingError("mode 'similarity' needs GNSS camera positions (rover/ + events)")
+        warnings.append("no GNSS: the joint adjustment uses the control points only")
+    if opts.mode == "similarity" and opts.lever_arm_cam_m is None:
+        raise ProcessingError("mode 'similarity' needs a known lever arm (--lever-arm X,Y,Z in the camera frame)")
+    frame = _project_frame(opts, meta, control, gnss)
+
+    gnss_enu = {}
+    if gnss is not None:
+        enu = frame.ecef_to_enu(gnss.position_ecef_m)
+        vel = gnss.velocity_ecef_m_s @ frame.R_ecef_to_enu.T
+        cov = np.einsum("ij,kj,lj->kil", frame.R_ecef_to_enu, gnss.sd_ecef_m ** 2, frame.R_ecef_to_enu)
+        for k, name in enumerate(gnss.names):
+            if gnss.status[k] == 0:
+                warnings.append(f"{name}: no PPK solution at its trigger; used without GNSS")
+                continue
+            gnss_enu[name] = (enu[k], vel[k], cov[k], int(gnss.status[k]), float(gnss.trigger_gps_time_s[k]))
+
+    # ---- SfM
+    t0 = time.perf_counter()
+    sfm_model = SFM_MODELS.get(opts.camera_model)
+    if sfm_model is None:
+        raise ValueError(f"camera model must be one of {tuple(SFM_MODELS)}")
+    positions = {n: tuple(float(v) for v in gnss_enu[n][0]) for n in gnss_enu} or None
+    sfm_opts = SfmOptions(camera_model=sfm_model, refine_principal_point=opts.camera_model == "brown",
+                          num_threads=opts.num_threads, positions=positions)
+    sfm_dir = out / "sfm"
+    rec = None
+    if opts.reuse and (sfm_dir / "sfm_summary.json").is_file():
+        prev = json.loads((sfm_dir / "sfm_summary.json").read_text())
+        if prev.get("options", {}).get("camera_model") == sfm_model and (sfm_dir / "sparse" / "0").is_dir():
+            from ..photo import colmap_api
+
+            rec = colmap_api.read_model(sfm_dir / "sparse" / "0")
+    if rec is None:
+        res = run_sfm(survey_dir / "images", sfm_dir, sfm_opts, progress=progress)
+        rec = res.reconstruction
+    timings["sfm_s"] = time.perf_counter() - t0
+    if rec is None or rec.num_registered < 3:
+        raise ProcessingError(f"structure from motion registered {0 if rec is None else rec.num_registered} of "
+                              f"{len(image_names)} images: the images do not overlap enough")
+    unregistered = sorted(set(image_names) - {im.name for im in rec.images.values()})
+    if unregistered:
+        warnings.append(f"{len(unregistered)} image(s) not registered by SfM: {', '.join(unregistered[:10])}"
+                        + (" ..." if len(unregistered) > 10 else ""))
+    if len(rec.cameras) != 1:
+        warnings.append(f"SfM produced {len(rec.cameras)} cameras; the adjustment uses one shared camera")
+
+    t0 = time.perf_counter()
+    report("adjustment", 0, 1)
+    result = _adjust(opts, frame, rec, control, gnss_enu, warnings)
+    timings["adjustment_s"] = time.perf_counter() - t0
+    report("adjustment", 1, 1)
+
+    t0 = time.perf_counter()
+    summary = _write_outputs(out, survey_dir, opts, frame, rec, control, result, gnss, warnings)
+    summary["target_refinement"] = target_refinement
+    timings["outputs_s"] = time.perf_counter() - t0
+    summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
+    (out / "georef_summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+# ------------------------------------------------------------------------------------------- adjustment
+
+@dataclass
+class _Adjusted:
+    names: list[str]                 # registered image names, camera order
+    R_cam_to_enu: np.ndarray
+    centre_enu_m: np.ndarray
+    centre_cov_enu_m2: np.ndarray
+    intrinsics: np.ndarray
+    intrinsics_sigma: dict
+    lever_arm_cam_m: np.ndarray
+    lever_arm_sigma_m: np.ndarray | None
+    delay_s: float
+    delay_sigma_s: float | None
+    correlations: dict
+    points_enu_m: np.ndarray
+    points_rgb: np.ndarray
+    gnss_rows: list[dict]            # per image with GNSS: residual ENU, outlier flag, time
+    blunders: list[dict]
+    used_measurements: dict          # point -> list of (image, uv)
+    stats: dict
+    rerun: object = None             # callable(control_names) -> (names, R, C, intr) for leave-one-out
+
+
+def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr):
+    from ..photo.align import fit_similarity
+
+    by_name = rec.image_by_name()
+    with_gnss = [n for n in names if n in gnss_enu]
+    if len(with_gnss) >= 3:
+        src = np.array([by_name[n].centre for n in with_gnss])
+        dst = np.array([gnss_enu[n][0] for n in with_gnss])
+        sim, _ = fit_similarity(src, dst)
+        # include the lever arm once the rotation is known
+        if np.any(lever):
+            dst2 = dst + np.array([sim.R @ by_name[n].R_cam_from_world.T @ lever for n in with_gnss])
+            sim, _ = fit_similarity(src, dst2)
+        return sim
+    # control points triangulated in the model frame
+    R_model = np.array([by_name[n].R_cam_from_world.T for n in names])
+    C_model = np.array([by_name[n].centre for n in names])
+    src, dst = [], []
+    for pname, p in control.points.items():
+        if p.role != "control":
+            continue
+        ms = [m for m in control.measurements_of(pname) if m.image in im_idx]
+        if len(ms) < 2:
+            continue
+        t = triangulate(np.array([m.uv_px for m in ms]), np.array([im_idx[m.image] for m in ms]), R_model, C_model, intr)
+        src.append(t.xyz_enu_m)
+        dst.append(control_enu[pname])
+    if len(src) < 3:
+        raise ProcessingError(f"{len(src)} control points are measured in two or more images; at least 3 are needed "
+                              f"without GNSS camera positions")
+    sim, _ = fit_similarity(np.array(src), np.array(dst))
+    return sim
+
+
+def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_points: int, cells: int = 40) -> np.ndarray:
+    """Indices of at most ``max_points`` points spread over a cells x cells horizontal grid, taking the
+    longest tracks of each cell first (round robin over the cells), points seen in 2 images last."""
+    n = len(xyz_enu_m)
+    if n <= max_points:
+        return np.arange(n)
+    xy = xyz_enu_m[:, :2]
+    lo, hi = np.percentile(xy, 1, axis=0), np.percentile(xy, 99, axis=0)
+    ij = np.clip(((xy - lo) / np.maximum(hi - lo, 1e-9) * cells).astype(int), 0, cells - 1)
+    cell = ij[:, 0] * cells + ij[:, 1]
+    # rank of each point inside its cell by decreasing track length
+    order = np.lexsort((-track_length, cell))
+    first = np.r_[0, np.flatnonzero(np.diff(cell[order])) + 1]
+    rank = np.arange(n) - np.repeat(first, np.diff(np.r_[first, n]))
+    key = rank + np.where(track_length[order] < 3, n, 0)
+    return np.sort(order[np.argsort(key, kind="stable")[:max_points]])
+
+
+def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list) -> _Adjusted:
+    cam = next(iter(rec.cameras.values()))
+    if opts.camera_model == "fisheye":
+        raise ProcessingError("the adjustment supports the radial and brown camera models; fisheye is SfM-only for now")
+    intr0 = cm.from_colmap(cam.model, cam.params)
+    images = sorted(rec.images.values(), key=lambda im: im.name)
+    names = [im.name for im in images]
+    im_idx = {n: i for i, n in enumerate(names)}
+    id_to_idx = {im.image_id: i for i, im in enumerate(images)}
+    lever0 = np.asarray(opts.lever_arm_cam_m, float) if opts.lever_arm_cam_m is not None else np.zeros(3)
+    ctl_points = list(control.points.values())
+    control_enu = dict(zip([p.name for p in ctl_points], points_to_enu(ctl_points, frame))) if ctl_points else {}
+
+    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr0)
+    R0 = np.array([sim.R @ im.R_cam_from_world.T for im in images])
+    C0 = np.array([sim.apply(im.centre[None])[0] for im in images])
+
+    # blunders among the control/check point measurements (on the initial orientation)
+    blunders, used = [], {}
+    for pname in control.points:
+        ms = [m for m in control.measurements_of(pname) if m.image in im_idx]
+        if not ms:
+            continue
+        keep, reps = find_blunders(pname, [m.image for m in ms], np.array([m.uv_px for m in ms]),
+                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr0, opts.blunder_threshold_px)
+        for r in reps:
+            blunders.append({"point": r.point, "image": r.image, "residual_px": round(r.residual_px, 2), "message": r.message})
+            warnings.append(r.message)
+        used[pname] = [(ms[i].image, ms[i].uv_px) for i in keep]
+
+    # tie points: a spatially even subset, longest tracks first in each cell
+    pts = rec.points_xyz
+    order = select_tie_points(sim.apply(pts), rec.points_track_length, opts.max_tie_points)
+    keep_pt = np.zeros(len(pts), bool)
+    keep_pt[order] = True
+    new_index = -np.ones(len(pts), int)
+    new_index[keep_pt] = np.arange(keep_pt.sum())
+    sel = keep_pt[rec.obs_point_index] & np.isin(rec.obs_image_id, list(id_to_idx))
+    tie_cam = np.array([id_to_idx[i] for i in rec.obs_image_id[sel]], int)
+    tie_pt = new_index[rec.obs_point_index[sel]]
+    tie_uv = rec.obs_xy_px[sel] - 0.5
+    tie_xyz = sim.apply(pts[keep_pt])
+    rgb = rec.points_rgb[keep_pt]
+
+    def build(control_names: set[str], use_gnss: bool, start=None) -> tuple[BundleProblem, list[str], list[str]]:
+        """Problem with the tie points, the GCPs measured in >= 2 images (control ones with priors);
+        ``start`` = (R, C, tie points, intrinsics, lever arm, delay) warm-starts it."""
+        n_tie = len(tie_xyz)
+        Rs, Cs, Ps, Is, Ls, Ds = start if start is not None else (R0, C0, tie_xyz, intr0, lever0, float(opts.delay_s))
+        gcp_names = [n for n in used if len(used[n]) >= 2 and n in control_names]
+        g_xyz, g_cam, g_pt, g_uv = [], [], [], []
+        for k, n in enumerate(gcp_names):
+            ms = used[n]
+            t = triangulate(np.array([m[1] for m in ms]), np.array([im_idx[m[0]] for m in ms]), Rs, Cs, Is)
+            g_xyz.append(t.xyz_enu_m)
+            for img, uv in ms:
+                g_cam.append(im_idx[img])
+                g_pt.append(n_tie + k)
+                g_uv.append(uv)
+        P = np.vstack([Ps, np.array(g_xyz).reshape(-1, 3)])
+        obs_cam = np.concatenate([tie_cam, np.array(g_cam, int)])
+        obs_pt = np.concatenate([tie_pt, np.array(g_pt, int)])
+        obs_uv = np.vstack([tie_uv, np.array(g_uv).reshape(-1, 2)])
+        sig = np.concatenate([np.full(len(tie_cam), opts.sigma_px), np.full(len(g_cam), opts.gcp_sigma_px)])
+        grp = np.concatenate([np.zeros(len(tie_cam), int), np.ones(len(g_cam), int)])
+        gn = [n for n in names if n in gnss_enu] if use_gnss else []
+        prob = BundleProblem(R_cam_to_enu=Rs.copy(), centre_enu_m=Cs.copy(), intrinsics=Is.copy(), points_enu_m=P,
+                             obs_camera=obs_cam, obs_point=obs_pt, obs_uv_px=obs_uv, obs_sigma_px=sig, obs_group=grp,
+                             gnss_camera=np.array([im_idx[n] for n in gn], int),
+                             antenna_enu_m=np.array([gnss_enu[n][0] for n in gn]).reshape(-1, 3),
+                             antenna_velocity_enu_m_s=np.array([gnss_enu[n][1] for n in gn]).reshape(-1, 3),
+                             antenna_cov_enu_m2=np.array([gnss_enu[n][2] for n in gn]).reshape(-1, 3, 3),
+                             lever_arm_cam_m=np.array(Ls, float), delay_s=float(Ds),
+                             control_point=np.arange(n_tie, n_tie + len(gcp_names), dtype=int),
+                             control_enu_m=np.array([control_enu[n] for n in gcp_names]).reshape(-1, 3),
+                             control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]))
+        if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
+            prob.lever_arm_prior_cam_m = lever0.copy()
+            prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
+        return prob, gn, gcp_names
+
+    free = cm.free_mask(opts.camera_model)
+    est_lever = opts.estimate_lever_arm if opts.estimate_lever_arm is not None else \
+        (opts.lever_arm_cam_m is None or opts.lever_arm_sigma_m is not None)
+    control_names = {n for n, p in control.points.items() if p.role == "control"}
+    lever_sigma = None
+    delay_sigma = None
+    correlations: dict = {}
+    gnss_rows: list[dict] = []
+    stats: dict = {"mode": opts.mode}
+
+    def run_ba(control_set, use_gnss, with_lever, with_delay, start=None, variances=None):
+        prob, gn, gcps = build(control_set, use_gnss, start)
+        bo = BundleOptions(free_intrinsics=free, estimate_lever_arm=with_lever, estimate_delay=with_delay)
+        if variances is not None:  # a warm re-run keeps the variance factors of the full adjustment
+            bo.variance_components = False
+            bo.initial_variances = dict(variances)
+        return adjust(prob, bo), gn, gcps
+
+    if opts.mode == "joint":
+        res, gn, gcps = run_ba(control_names, True, est_lever and bool(gnss_enu), opts.estimate_delay and bool(gnss_enu))
+        prob = res.problem
+        lever, delay = prob.lever_arm_cam_m, prob.delay_s
+        if "lever_x" in res.global_names:
+            lever_sigma = np.array([res.value(k)[1] for k in ("lever_x", "lever_y", "lever_z")])
+        if "delay" in res.global_names:
+            delay_sigma = res.value("delay")[1]
+        corr = res.global_correlation()
+        correlations = {"names": res.global_names, "matrix": np.round(corr, 3).tolist()}
+        for k, n in enumerate(gn):
+            gnss_rows.append({"image": n, "gps_time_s": gnss_enu[n][4], "status": gnss_enu[n][3],
+                              "residual_enu_m": res.gnss_residual_enu_m[k].round(4).tolist(),
+                              "outlier": bool(res.gnss_outlier[k])})
+        stats.update({"iterations": res.iterations, "converged": res.converged,
+                      "rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
+                      "tie_observation_outliers": int(res.obs_outlier.sum()), "gnss_outliers": int(res.gnss_outlier.sum()),
+                      "control_points_used": gcps})
+        intr = prob.intrinsics
+        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.PARAM_NAMES}
+        R, C = prob.R_cam_to_enu, prob.centre_enu_m
+        ccov = res.camera_cov[:, 3:, 3:]
+        P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
+    elif opts.mode == "gcp":
+        res, _, gcps = run_ba(control_names, False, False, False)
+        if len(gcps) < 3:
+            raise ProcessingError(f"mode 'gcp' needs at least 3 control points measured in two or more images "
+                                  f"(have {len(gcps)})")
+        prob = res.problem
+        R, C, intr = prob.R_cam_to_enu, prob.centre_enu_m, prob.intrinsics
+        gn = [n for n in names if n in gnss_enu]
+        if len(gn) < 3:
+            raise ProcessingError("mode 'gcp' estimates the lever arm and delay from GNSS camera positions: none found")
+        k_idx = [im_idx[n] for n in gn]
+        cov = np.array([gnss_enu[n][2] for n in gn]) + res.camera_cov[k_idx][:, 3:, 3:] + np.eye(3) * 1e-6
+        fit = estimate_lever_arm_delay(R[k_idx], C[k_idx], np.array([gnss_enu[n][0] for n in gn]),
+                                       np.array([gnss_enu[n][1] for n in gn]), cov, estimate_lever=est_lever,
+                                       lever_arm_cam_m=lever0, estimate_delay=opts.estimate_delay, delay_s=opts.delay_s)
+        lever, delay = fit.lever_arm_cam_m, fit.delay_s
+        if est_lever:
+            lever_sigma = np.array([fit.sigma(k) for k in ("lever_x", "lever_y", "lever_z")])
+        if opts.estimate_delay:
+            delay_sigma = fit.sigma("delay")
+        s = np.sqrt(np.diag(fit.cov))
+        correlations = {"names": fit.names, "matrix": np.round(fit.cov / np.outer(s, s), 3).tolist()}
+        for k, n in enumerate(gn):
+            gnss_rows.append({"image": n, "gps_time_s": gnss_enu[n][4], "status": gnss_enu[n][3],
+                              "residual_enu_m": (-fit.residual_enu_m[k]).round(4).tolist(), "outlier": bool(fit.outlier[k])})
+        stats.update({"rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
+                      "lever_delay_sigma0": fit.sigma0, "control_points_used": gcps,
+                      "gnss_outliers": int(fit.outlier.sum())})
+        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.PARAM_NAMES}
+        ccov = res.camera_cov[:, 3:, 3:]
+        P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
+    else:  # similarity
+        by_name = rec.image_by_name()
+        gn = [n for n in names if n in gnss_enu]
+        fit = fit_similarity_delay(np.array([by_name[n].centre for n in gn]),
+                                   np.array([by_name[n].R_cam_from_world.T for n in gn]),
+                                   np.array([gnss_enu[n][0] for n in gn]), np.array([gnss_enu[n][1] for n in gn]),
+                                   np.array([gnss_enu[n][2] for n in gn]) + np.eye(3) * 1e-5, lever0,
+                                   estimate_delay=opts.estimate_delay)
+        s, Rs, t = fit.similarity
+        R = np.array([Rs @ im.R_cam_from_world.T for im in images])
+        C = np.array([s * Rs @ im.centre + t for im in images])
+        intr = intr0
+        lever, delay = lever0, fit.delay_s
+        if opts.estimate_delay:
+            delay_sigma = fit.sigma("delay")
+        isig = {}
+        sd = np.sqrt(np.diag(fit.cov))
+        correlations = {"names": fit.names, "matrix": np.round(fit.cov / np.outer(sd, sd), 3).tolist()}
+        for k, n in enumerate(gn):
+            gnss_rows.append({"image": n, "gps_time_s": gnss_enu[n][4], "status": gnss_enu[n][3],
+                              "residual_enu_m": (-fit.residual_enu_m[k]).round(4).tolist(), "outlier": bool(fit.outlier[k])})
+        stats.update({"scale": s, "sigma0": fit.sigma0, "gnss_outliers": int(fit.outlier.sum())})
+        ccov = np.repeat((np.mean([np.trace(gnss_enu[n][2]) for n in gn]) / 3 * fit.sigma0 ** 2 * np.eye(3))[None], len(names), 0)
+        P, prgb = s * pts @ Rs.T + t, rec.points_rgb
+
+    final = (res.problem, res.sigma0) if opts.mode in ("joint", "gcp") else None
+
+    def rerun(control_set: set[str]):
+        fp, s0 = final
+        start = (fp.R_cam_to_enu, fp.centre_enu_m, fp.points_enu_m[:len(tie_xyz)], fp.intrinsics, fp.lever_arm_cam_m,
+                 fp.delay_s)
+        var = {k: v ** 2 for k, v in s0.items()}
+        if opts.mode == "joint":
+            r, _, _ = run_ba(control_set, True, est_lever and bool(gnss_enu), opts.estimate_delay and bool(gnss_enu),
+                             start, var)
+        elif opts.mode == "gcp":
+            r, _, g = run_ba(control_set, False, False, False, start, var)
+            if len(g) < 3:
+                return None
+        else:
+            return None
+        return r.problem.R_cam_to_enu, r.problem.centre_enu_m, r.problem.intrinsics
+
+    return _Adjusted(names=names, R_cam_to_enu=R, centre_enu_m=C, centre_cov_enu_m2=ccov, intrinsics=intr,
+                     intrinsics_sigma=isig, lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
+                     delay_s=float(delay), delay_sigma_s=delay_sigma, correlations=correlations, points_enu_m=P,
+                     points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
+                     rerun=rerun)
+
+
+# ------------------------------------------------------------------------------------------- outputs
+
+def _residual_row(name, role, est_enu, cov_enu, frame: ProjectFrame, control: ControlData, n_img, note="") -> ResidualRow:
+    from pyproj import CRS, Transformer
+
+    p = control.points[name]
+    est_grid = frame.enu_to_grid(est_enu)
+    crs = CRS.from_user_input(p.crs)
+    if crs.to_epsg() == frame.epsg:
+        surveyed = p.xyz_crs
+    else:
+        tr = Transformer.from_crs(crs, f"EPSG:{frame.epsg}", always_xy=True)
+        e, n = tr.transform(p.xyz_crs[0], p.xyz_crs[1])
+        surveyed = np.array([e, n, p.xyz_crs[2]])
+    d = est_grid - surveyed
+    sig = tuple(float(v) for v in np.sqrt(np.abs(np.diag(cov_enu)))) if cov_enu is not None else None
+    return ResidualRow(name, role, float(d[0]), float(d[1]), float(d[2]), float(np.linalg.norm(d)), n_img, sig, note)
+
+
+def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), R=None, C=None, intr=None,
+                 kind="check points") -> ResidualTable:
+    R = adj.R_cam_to_enu if R is None else R
+    C = adj.centre_enu_m if C is None else C
+    intr = adj.intrinsics if intr is None else intr
+    idx = {n: i for i, n in enumerate(adj.names)}
+    table = ResidualTable(kind, f"EPSG:{frame.epsg} (E, N, ellipsoidal h)")
+    for name, p in sorted(control.points.items()):
+        if p.role not in roles:
+            continue
+        ms = [m for m in adj.used_measurements.get(name, []) if m[0] in idx]
+        if len(ms) < 2:
+            continue
+        t = triangulate(np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms]), R, C, intr)
+        table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, t.cov_enu_m2, frame, control, len(ms)))
+    return table
+
+
+def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
+                   adj: _Adjusted, gnss, warnings: list) -> dict:
+    from ..photo.oriented_images import OrientedCamera, OrientedImage, OrientedImages
+
+    # oriented images
+    model, params = cm.to_colmap_opencv(adj.intrinsics)
+    w, h = next(iter(rec.cameras.values())).width, next(iter(rec.cameras.values())).height
+    oi = OrientedImages(frame=frame, image_dir=(survey_dir / "images").resolve(),
+                        cameras={1: OrientedCamera(model, w, h, params)},
+                        images=[OrientedImage(n, 1, adj.R_cam_to_enu[i], adj.centre_enu_m[i],
+                                              np.sqrt(np.abs(np.diag(adj.centre_cov_enu_m2[i]))))
+                                for i, n in enumerate(adj.names)],
+                        sparse_xyz_enu_m=adj.points_enu_m, sparse_rgb=adj.points_rgb,
+                        extra={"source": f"georef {opts.mode} adjustment"})
+    oi.write(out / "oriented_images.json")
+    _write_ply(out / "sparse_points.ply", frame.enu_to_grid(adj.points_enu_m) - np.array([frame.origin_e, frame.origin_n, 0.0]),
+               adj.points_rgb, comment=f"project CRS EPSG:{frame.epsg}, offsets from E0={frame.origin_e} N0={frame.origin_n}")
+
+    # check points and leave-one-out
+    checks = _check_table(adj, frame, control)
+    checks.write(out / "residuals.json", out / "residuals.csv")
+    loo = ResidualTable("control points, leave-one-out", checks.crs)
+    controls = sorted(n for n, p in control.points.items() if p.role == "control")
+    if opts.leave_one_out and controls and opts.mode in ("joint", "gcp"):
+        for name in controls:
+            r = adj.rerun(set(controls) - {name})
+            if r is None:
+                continue
+            R, C, intr = r
+            control.points[name].role = "loo"
+            t = _check_table(adj, frame, control, roles=("loo",), R=R, C=C, intr=intr)
+            control.points[name].role = "control"
+            for row in t.rows:
+                row.role = "control (left out)"
+                loo.rows.append(row)
+        loo.write(out / "control_loo.json", out / "control_loo.csv")
+    fit_table = _check_table(adj, frame, control, roles=("control",), kind="control points (in the adjustment)")
+
+    lever = {"lever_arm_cam_m": adj.lever_arm_cam_m.round(5).tolist(),
+             "lever_arm_sigma_m": None if adj.lever_arm_sigma_m is None else adj.lever_arm_sigma_m.round(5).tolist(),
+             "delay_s": round(adj.delay_s, 6), "delay_sigma_s": None if adj.delay_sigma_s is None else round(adj.delay_sigma_s, 6),
+             "estimated": {"lever_arm": adj.lever_arm_sigma_m is not None, "delay": adj.delay_sigma_s is not None},
+             "model": "C = A(trigger) + R_cam_to_enu @ lever_arm + v(trigger) * delay",
+             "correlations": adj.correlations}
+    (out / "lever_arm_delay.json").write_text(json.dumps(lever, indent=1))
+    (out / "gnss_residuals.json").write_text(json.dumps(adj.gnss_rows, indent=1))
+
+    plots = []
+    try:
+        from ..adjustment.plots import plot_check_residuals, plot_gnss_residuals
+
+        (out / "plots").mkdir(exist_ok=True)
+        plots.append(str(plot_check_residuals(out / "plots" / "check_residuals.png", checks, loo, control, frame)))
+        if adj.gnss_rows:
+            plots.append(str(plot_gnss_residuals(out / "plots" / "gnss_residuals.png", adj.gnss_rows)))
+    except ImportError as exc:  # matplotlib missing: the numbers are still written
+        warnings.append(f"plots not drawn ({exc})")
+
+    summary = {
+        "mode": opts.mode, "camera_model": opts.camera_model, "project_frame": frame.to_dict(),
+        "images": {"total": len(_image_names(survey_dir / "images")), "registered": len(adj.names),
+                   "with_gnss": len(adj.gnss_rows)},
+        "gnss_source": gnss.source if gnss is not None else None,
+        "sfm": {"mean_reprojection_error_px": rec.mean_reprojection_error_px, "points": int(len(rec.points_xyz))},
+        "adjustment": adj.stats,
+        "intrinsics": {"names": list(cm.PARAM_NAMES), "values": adj.intrinsics.round(7).tolist(),
+                       "sigma": {k: float(v) for k, v in adj.intrinsics_sigma.items()},
+                       "convention": "OpenCV pixels (top-left pixel centre = 0, 0); distortion on normalised coordinates"},
+        "lever_arm_delay": lever,
+        "check_points": checks.to_dict(), "control_points_fit": fit_table.to_dict(),
+        "control_leave_one_out": loo.to_dict() if loo.rows else None,
+        "blunders": adj.blunders, "warnings": warnings, "plots": plots,
+        "outputs": {k: str(out / v) for k, v in {"oriented_images": "oriented_images.json", "residuals_json": "residuals.json",
+                                                  "residuals_csv": "residuals.csv", "lever_arm_delay": "lever_arm_delay.json",
+                                                  "sparse_points": "sparse_points.ply"}.items()},
+        "options": {k: v for k, v in asdict(opts).items() if k != "gnss_options"},
+    }
+    return summary
+
+
+def _write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray, comment: str = "") -> None:
+    header = ("ply\nformat binary_little_endian 1.0\n" + (f"comment {comment}\n" if comment else "")
+              + f"element vertex {len(xyz)}\nproperty double x\nproperty double y\nproperty double z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    rec = np.zeros(len(xyz), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    rec["r"], rec["g"], rec["b"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    with open(path, "wb") as f:
+        f.write(header.encode())
+        f.write(rec.tobytes())
