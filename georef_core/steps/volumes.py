@@ -1,0 +1,101 @@
+"""Step "volumes": volumes of the polygons of a GeoJSON file on a DSM (one result per feature), written
+to a JSON file; and the change between two surveys' DSMs. The CLI (`georef volume`, `georef change`)
+and the worker call these functions. Library: georef_core.volumes (docs/volumes.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from ..errors import ProcessingError
+from ..progress import ProgressFn, no_progress
+from ..volumes.base_surfaces import BaseSpec
+from ..volumes.change import compute_change
+from ..volumes.polygons import read_polygons
+from ..volumes.raster_io import open_elevation_raster
+from ..volumes.uncertainty import Z95, NoiseModel
+from ..volumes.volume import VolumeOptions, compute_volume
+
+
+def _write_json(path, doc: dict) -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(p)
+
+
+def volume_totals(results: list[dict]) -> dict:
+    """Sums over polygons. The 1-sigma of a total adds the vertical-bias terms linearly (one bias for the
+    whole survey) and the other components in quadrature (independent between piles, an approximation
+    for touching piles)."""
+    cut = sum(r["cut_m3"] for r in results)
+    fill = sum(r["fill_m3"] for r in results)
+    bias = sum(r["uncertainty"]["components_m3"].get("height_bias_m3") or 0.0 for r in results)
+    rnd2 = sum(sum((v or 0.0) ** 2 for k, v in r["uncertainty"]["components_m3"].items() if k != "height_bias_m3")
+               for r in results)
+    s = math.sqrt(rnd2 + bias * bias)
+    return {"cut_m3": round(cut, 3), "fill_m3": round(fill, 3), "net_m3": round(cut - fill, 3),
+            "area_m2": round(sum(r["area_m2"] for r in results), 3), "sigma_m3": round(s, 3),
+            "ci95_m3": round(Z95 * s, 3), "n_polygons": len(results)}
+
+
+def run_volumes(dsm_path, polygons_path, out_json=None, base: str = "lowest", dsm_sigma_m: float | None = None,
+                height_bias_m: float | None = None, correlation_length_m: float | None = None,
+                polygon_crs: str | None = None, options: VolumeOptions | dict | None = None,
+                progress: ProgressFn | None = None) -> dict:
+    """Volumes of every polygon feature of ``polygons_path`` on ``dsm_path`` above ``base`` (lowest,
+    highest, mean, plane, tin, elevation:Z or surface:FILE.tif); written to ``out_json`` when given.
+    Returns {"dsm", "polygons", "base", "noise_model", "results": [...], "totals"}."""
+    progress = progress or no_progress
+    if isinstance(options, dict):
+        options = VolumeOptions(**options)
+    try:
+        spec = BaseSpec.parse(base)
+    except ValueError as exc:
+        raise ProcessingError(str(exc)) from None
+    info = open_elevation_raster(dsm_path)
+    polys = read_polygons(polygons_path, polygon_crs)
+    try:
+        model = NoiseModel.for_dsm(info.path, dsm_sigma_m, height_bias_m, correlation_length_m)
+    except ValueError as exc:
+        raise ProcessingError(str(exc)) from None
+    results = []
+    for k, p in enumerate(polys):
+        progress("volumes", k, len(polys))
+        r = compute_volume(info, p, spec, options, model).to_dict()
+        pts = r["base"].pop("points_xyz_m", None)  # a TIN's outline points: kept by stockpile records, not here
+        if pts is not None:
+            r["base"]["n_points"] = len(pts)
+        results.append(r)
+    progress("volumes", len(polys), len(polys))
+    doc = {"dsm": str(info.path), "crs": info.crs_label(), "cell_size_m": round(info.cell_size_m, 6),
+           "polygons": str(polygons_path), "base": spec.label(), "noise_model": model.to_dict(),
+           "results": results, "totals": volume_totals(results)}
+    if out_json is not None:
+        _write_json(out_json, doc)
+        doc["output"] = str(out_json)
+    return doc
+
+
+def run_change(before_path, after_path, out_dir=None, polygons_path=None, stable_path=None, tolerance_m: float = 0.05,
+               align: bool = False, dsm_sigma_m: float | None = None, height_bias_m: float | None = None,
+               correlation_length_m: float | None = None, polygon_crs: str | None = None,
+               progress: ProgressFn | None = None) -> dict:
+    """Change from ``before_path`` to ``after_path``: ``out_dir/dz.tif`` and ``out_dir/change.json`` when
+    ``out_dir`` is given. ``dsm_sigma_m``/``height_bias_m``/``correlation_length_m`` apply to both DSMs
+    (else each DSM's dense_summary.json or the defaults)."""
+    try:
+        nb = NoiseModel.for_dsm(before_path, dsm_sigma_m, height_bias_m, correlation_length_m)
+        na = NoiseModel.for_dsm(after_path, dsm_sigma_m, height_bias_m, correlation_length_m)
+    except ValueError as exc:
+        raise ProcessingError(str(exc)) from None
+    polys = read_polygons(polygons_path, polygon_crs) if polygons_path else None
+    stable = read_polygons(stable_path, polygon_crs) if stable_path else None
+    res = compute_change(before_path, after_path, out_dir, polys, stable, tolerance_m, align, nb, na, progress)
+    doc = res.to_dict()
+    if out_dir is not None:
+        _write_json(Path(out_dir) / "change.json", doc)
+        doc["output"] = str(Path(out_dir) / "change.json")
+    return doc
