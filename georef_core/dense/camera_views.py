@@ -1,0 +1,168 @@
+"""An oriented image as a view at a working scale: pinhole calibration scaled to the image size used,
+lens distortion (OpenCV coefficients, scale-free), rotation world(ENU)->camera and projection centre.
+
+Pixel convention: OpenCV, the centre of the top-left pixel is (0, 0). Scaling an image by ``s`` maps a
+pixel ``u`` to ``s (u + 0.5) - 0.5``. Camera axes: x right, y down, z forward (into the scene).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputFileError
+from ..photo.oriented_images import OrientedCamera, OrientedImages
+
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+
+
+def opencv_distortion_coeffs(camera: OrientedCamera) -> np.ndarray:
+    """OpenCV distortion vector of a COLMAP camera: (k1, k2, p1, p2, k3) or, for FULL_OPENCV with rational
+    terms, (k1, k2, p1, p2, k3, k4, k5, k6)."""
+    if camera.model == "FULL_OPENCV":
+        p = list(camera.params) + [0.0] * 12
+        coeffs = np.array(p[4:12], float)
+        return coeffs if np.any(coeffs[5:] != 0.0) else coeffs[:5]
+    return np.asarray(camera.opencv_distortion(), float)
+
+
+@dataclass
+class CameraView:
+    """One image at a working scale."""
+
+    name: str
+    path: Path
+    width: int
+    height: int
+    K: np.ndarray  # 3x3, at this scale
+    dist: np.ndarray  # OpenCV distortion coefficients (independent of the scale)
+    R_world_to_cam: np.ndarray  # 3x3, x_cam = R (x_enu - C)
+    centre_enu_m: np.ndarray  # 3
+    full_width: int
+    full_height: int
+
+    # --- geometry --------------------------------------------------------------------------------
+    @property
+    def optical_axis_enu(self) -> np.ndarray:
+        return self.R_world_to_cam[2].copy()
+
+    @property
+    def focal_px(self) -> float:
+        return float(0.5 * (self.K[0, 0] + self.K[1, 1]))
+
+    def scaled_to(self, width: int, height: int) -> "CameraView":
+        """The same view with the image resampled to width x height pixels."""
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return replace(self, width=int(width), height=int(height), K=K)
+
+    def scaled(self, factor: float) -> "CameraView":
+        return self.scaled_to(max(1, round(self.width * factor)), max(1, round(self.height * factor)))
+
+    def to_camera(self, xyz_enu: np.ndarray) -> np.ndarray:
+        """ENU points (N, 3) -> camera coordinates (N, 3) (a transposed view of a (3, N) array: the
+        (3, 3) @ (3, N) product is several times faster than (N, 3) @ (3, 3) in numpy)."""
+        return (self.R_world_to_cam @ (np.asarray(xyz_enu, float) - self.centre_enu_m).T).T
+
+    def project_pinhole(self, xyz_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted (pinhole) pixel coordinates (N, 2) and depths z (N,) of ENU points."""
+        pc = self.to_camera(xyz_enu)
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = pc[:, :2] / z[:, None]
+        uv = uv * np.array([self.K[0, 0], self.K[1, 1]]) + np.array([self.K[0, 2], self.K[1, 2]])
+        return uv, z
+
+    def project_distorted(self, xyz_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates in the real (distorted) image (N, 2) and depths z (N,) of ENU points."""
+        pc = self.to_camera(xyz_enu)
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = pc[:, 0] / z
+            y = pc[:, 1] / z
+        xd, yd = apply_distortion(x, y, self.dist)
+        uv = np.stack([self.K[0, 0] * xd + self.K[0, 2], self.K[1, 1] * yd + self.K[1, 2]], axis=1)
+        return uv, z
+
+    def rays_enu(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """ENU directions (N, 3) of pinhole pixels, scaled so that their camera-z component is 1
+        (a point at depth z is ``C + z * ray``)."""
+        x = (np.asarray(u, float) - self.K[0, 2]) / self.K[0, 0]
+        y = (np.asarray(v, float) - self.K[1, 2]) / self.K[1, 1]
+        d = np.stack([x, y, np.ones_like(x)], axis=-1)
+        return d @ self.R_world_to_cam
+
+    def inside(self, uv: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        return ((uv[:, 0] >= -0.5 + margin) & (uv[:, 0] <= self.width - 0.5 - margin)
+                & (uv[:, 1] >= -0.5 + margin) & (uv[:, 1] <= self.height - 0.5 - margin))
+
+    # --- pixels ----------------------------------------------------------------------------------
+    def read_image(self, gray: bool = False) -> np.ndarray:
+        """The image file at this view's scale (BGR uint8, or grey)."""
+        return read_image_at(self.path, self.full_width, self.full_height, self.width, self.height, gray)
+
+    def undistort_maps(self, pinhole: "CameraView", R_rect: np.ndarray | None = None):
+        """cv2.remap maps from this (distorted) view's pixels to the pinhole grid ``pinhole`` (same centre;
+        its own K, size and, when given, the rotation R_rect from this camera's axes to ``pinhole``'s)."""
+        R = np.eye(3) if R_rect is None else R_rect
+        return cv2.initUndistortRectifyMap(self.K, self.dist, R, pinhole.K, (pinhole.width, pinhole.height),
+                                           cv2.CV_32FC1)
+
+
+def apply_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV (Brown + optional rational) distortion of normalised coordinates."""
+    d = np.zeros(8)
+    d[: len(dist)] = dist
+    k1, k2, p1, p2, k3, k4, k5, k6 = d
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    if k4 or k5 or k6:
+        radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    return xd, yd
+
+
+def read_image_at(path: Path, full_width: int, full_height: int, width: int, height: int,
+                  gray: bool = False) -> np.ndarray:
+    flags = (cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR) | cv2.IMREAD_IGNORE_ORIENTATION
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        if not Path(path).is_file():
+            raise InputFileError(path, "image file not found")
+        raise InputFileError(path, "cannot read the image (not a JPEG/TIFF/PNG image or corrupt)")
+    if img.shape[1] != full_width or img.shape[0] != full_height:
+        raise InputFileError(path, f"image is {img.shape[1]} x {img.shape[0]} px but its camera says "
+                                   f"{full_width} x {full_height}")
+    if (width, height) != (full_width, full_height):
+        img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def views_from_oriented(oriented: OrientedImages, max_image_size: int | None, source=None) -> list[CameraView]:
+    """Views of all oriented images, each scaled so that its longer side is at most ``max_image_size``
+    (never enlarged). ``source`` names the oriented-images file in errors."""
+    views = []
+    for im in oriented.images:
+        cam = oriented.cameras[im.camera_id]
+        if cam.model not in SUPPORTED_MODELS:
+            raise InputFileError(source or oriented.image_dir,
+                                 f"camera model {cam.model} of image {im.name} is not supported by the dense step "
+                                 f"(supported: {', '.join(SUPPORTED_MODELS)})")
+        R = np.asarray(im.R_cam_to_enu, float).T
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise InputFileError(source or oriented.image_dir, f"image {im.name}: R_cam_to_enu is not a rotation")
+        v = CameraView(im.name, oriented.image_path(im), cam.width, cam.height, cam.K(),
+                       opencv_distortion_coeffs(cam), R, np.asarray(im.centre_enu_m, float),
+                       cam.width, cam.height)
+        s = 1.0 if not max_image_size else min(1.0, max_image_size / max(cam.width, cam.height))
+        views.append(v.scaled(s) if s < 1.0 else v)
+    return views

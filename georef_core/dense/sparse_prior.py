@@ -1,0 +1,145 @@
+"""Where the scene is: sparse 3-D points and, per image, the range of depths and the ground height.
+
+Pair selection (footprint overlap, baseline-to-depth ratio) and the disparity search ranges of the
+matcher need the scene depth. The sparse points of the georeferencing step are used when the oriented
+images carry them; otherwise (e.g. orientations from simulator truth or an external source) ORB
+features are matched between spatially neighbouring images and triangulated with the known poses
+(ORB rather than SIFT: ~15x faster here, and a few hundred points per image are all that is needed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import ProcessingError
+from .camera_views import CameraView
+
+
+@dataclass
+class ViewDepth:
+    depth_lo_m: float  # 2nd percentile of the depths of the sparse points seen by the view
+    depth_med_m: float
+    depth_hi_m: float  # 98th percentile
+    ground_up_m: float  # median ENU up of those points
+    n_points: int
+
+
+@dataclass
+class SparsePrior:
+    xyz_enu_m: np.ndarray  # (N, 3)
+    views: list[ViewDepth]
+    source: str  # "oriented images" or "triangulated ORB features"
+
+    def points_seen_by(self, view: CameraView) -> np.ndarray:
+        uv, z = view.project_pinhole(self.xyz_enu_m)
+        ok = (z > 0) & view.inside(uv)
+        return self.xyz_enu_m[ok]
+
+
+def nearest_neighbours(views: list[CameraView], k: int, max_axis_angle_deg: float = 45.0) -> list[tuple[int, int]]:
+    """Unordered pairs (i < j) of each image with its k nearest camera centres (similar viewing direction)."""
+    C = np.array([v.centre_enu_m for v in views])
+    A = np.array([v.optical_axis_enu for v in views])
+    d = np.linalg.norm(C[:, None] - C[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    cos_max = np.cos(np.radians(max_axis_angle_deg))
+    pairs = set()
+    for i in range(len(views)):
+        order = [j for j in np.argsort(d[i]) if np.isfinite(d[i, j]) and A[i] @ A[j] >= cos_max]
+        for j in order[:k]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return sorted(pairs)
+
+
+def triangulate_features(views: list[CameraView], max_size: int = 1024, n_features: int = 2000,
+                         k_neighbours: int = 4, max_reprojection_px: float = 2.0) -> np.ndarray:
+    """Sparse ENU points from ORB feature matches between neighbouring images, triangulated with the known poses
+    and kept when they reproject within ``max_reprojection_px`` in both images with a triangulation angle
+    of at least 1 degree."""
+    orb = cv2.ORB_create(nfeatures=n_features)
+    feats = []
+    small_views = []
+    for v in views:
+        s = min(1.0, max_size / max(v.width, v.height))
+        sv = v.scaled(s) if s < 1.0 else v
+        small_views.append(sv)
+        kp, desc = orb.detectAndCompute(sv.read_image(gray=True), None)
+        pts = np.array([p.pt for p in kp], np.float64).reshape(-1, 2)
+        feats.append((pts, desc))
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    out = []
+    for i, j in nearest_neighbours(views, k_neighbours):
+        (pi, di), (pj, dj) = feats[i], feats[j]
+        if di is None or dj is None or len(pi) < 8 or len(pj) < 8:
+            continue
+        knn = matcher.knnMatch(di, dj, k=2)
+        m = np.array([(a.queryIdx, a.trainIdx) for a, *rest in knn if rest and a.distance < 0.8 * rest[0].distance],
+                     int).reshape(-1, 2)
+        if len(m) < 8:
+            continue
+        vi, vj = small_views[i], small_views[j]
+        xi = cv2.undistortPoints(pi[m[:, 0]].reshape(-1, 1, 2), vi.K, vi.dist).reshape(-1, 2)
+        xj = cv2.undistortPoints(pj[m[:, 1]].reshape(-1, 1, 2), vj.K, vj.dist).reshape(-1, 2)
+        origin = vi.centre_enu_m
+        Pi = np.hstack([vi.R_world_to_cam, (-vi.R_world_to_cam @ (vi.centre_enu_m - origin))[:, None]])
+        Pj = np.hstack([vj.R_world_to_cam, (-vj.R_world_to_cam @ (vj.centre_enu_m - origin))[:, None]])
+        Xh = cv2.triangulatePoints(Pi, Pj, xi.T.astype(np.float64), xj.T.astype(np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            X = (Xh[:3] / Xh[3]).T + origin
+        ok = np.all(np.isfinite(X), axis=1)
+        for v, x in ((vi, xi), (vj, xj)):
+            pc = v.to_camera(X)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                err = np.linalg.norm(pc[:, :2] / pc[:, 2:3] - x, axis=1) * v.focal_px
+            ok &= (pc[:, 2] > 0) & (err < max_reprojection_px)
+        ri = X - vi.centre_enu_m
+        rj = X - vj.centre_enu_m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cosang = np.sum(ri * rj, axis=1) / (np.linalg.norm(ri, axis=1) * np.linalg.norm(rj, axis=1))
+        ok &= cosang < np.cos(np.radians(1.0))
+        out.append(X[ok])
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def build_sparse_prior(views: list[CameraView], sparse_xyz_enu_m: np.ndarray | None = None,
+                       min_points: int = 200) -> SparsePrior:
+    """Scene depths per view from the given sparse points (when at least ``min_points``), else from
+    triangulated ORB matches."""
+    source = "oriented images"
+    xyz = None if sparse_xyz_enu_m is None else np.asarray(sparse_xyz_enu_m, float).reshape(-1, 3)
+    if xyz is None or len(xyz) < min_points:
+        xyz = triangulate_features(views)
+        source = "triangulated ORB features"
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    if len(xyz) < 30:
+        raise ProcessingError(f"cannot find the scene: only {len(xyz)} sparse points ({source}); the images do not "
+                              "overlap or their orientations are wrong")
+    # a global robust cut: points far outside the bulk of the scene (gross mismatches)
+    med = np.median(xyz, axis=0)
+    mad = np.median(np.abs(xyz - med), axis=0) * 1.4826 + 1e-6
+    xyz = xyz[np.all(np.abs(xyz - med) < 12.0 * mad + 1.0, axis=1)]
+    per_view = []
+    all_lo = []
+    for v in views:
+        uv, z = v.project_pinhole(xyz)
+        ok = (z > 0) & v.inside(uv)
+        if ok.sum() >= 10:
+            zs = z[ok]
+            lo, md, hi = np.percentile(zs, [2, 50, 98])
+            per_view.append(ViewDepth(float(lo), float(md), float(hi), float(np.median(xyz[ok, 2])), int(ok.sum())))
+            all_lo.append((lo, md, hi))
+        else:
+            per_view.append(None)
+    if not all_lo:
+        raise ProcessingError("no sparse point projects into any image: the orientations are inconsistent")
+    # views without enough points borrow the depth range of the scene seen from their own height
+    ground = float(np.median(xyz[:, 2]))
+    rel = np.median([(lo / md, hi / md) for lo, md, hi in all_lo], axis=0)
+    for k, v in enumerate(views):
+        if per_view[k] is None:
+            md = max(1.0, float(v.centre_enu_m[2] - ground))
+            per_view[k] = ViewDepth(md * rel[0], md, md * rel[1], ground, 0)
+    return SparsePrior(xyz, per_view, source)

@@ -1,0 +1,54 @@
+"""Shared inputs of the dense tests: the small simulated survey (12 images of 640 x 480, seed 1, no GNSS
+files), its true orientations as an oriented-images file, and one dense run over it (once per session)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import pytest
+
+SEED = 1
+
+
+def rendering_available() -> bool:
+    if not all(importlib.util.find_spec(m) for m in ("open3d", "PIL", "piexif", "rasterio", "cv2", "laspy")):
+        return False
+    try:
+        import open3d  # noqa: F401  (fails without the system libusb on Debian)
+    except Exception:  # noqa: BLE001
+        return False
+    return True
+
+
+@pytest.fixture(scope="session")
+def dense_sim(tmp_path_factory):
+    if not rendering_available():
+        pytest.skip("open3d / Pillow / piexif / rasterio / opencv / laspy missing")
+    from georef_core.sim import SimulationOptions, simulate_site
+
+    options = SimulationOptions.small()
+    options.gnss = None
+    return simulate_site(tmp_path_factory.mktemp("dense_sim"), seed=SEED, options=options, verbose=False)
+
+
+@pytest.fixture(scope="session")
+def dense_run(dense_sim, tmp_path_factory):
+    """(run folder, summary, progress calls) of run_dense on the simulator's true orientations."""
+    from georef_core.photo.oriented_images import oriented_images_from_simulator_truth
+    from georef_core.steps.dense import DenseOptions, run_dense
+
+    out = tmp_path_factory.mktemp("dense_run")
+    oriented_images_from_simulator_truth(dense_sim.out_dir).write(out / "oriented_images.json")
+    calls = []
+    summary = run_dense(out, DenseOptions(workers=2), progress=lambda s, d, t: calls.append((s, d, t)))
+    return out, summary, calls
+
+
+@pytest.fixture(scope="session")
+def work_area_bounds(dense_sim):
+    """(west, south, east, north) of the simulated work area in the project CRS."""
+    site = json.loads((dense_sim.out_dir / "truth" / "site.json").read_text())
+    f, wa = site["frame"], site["work_area_site_xy_m"]
+    return (f["origin_E_m"] + wa[0][0], f["origin_N_m"] + wa[0][1], f["origin_E_m"] + wa[1][0],
+            f["origin_N_m"] + wa[1][1])
