@@ -16,7 +16,10 @@ from ..gnss.solution_io import write_parquet, write_pos
 
 
 def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, events_csv=None,
-                   epsg: int | None = None, parquet_path=None, events_out=None) -> dict:
+                   epsg: int | None = None, parquet_path=None, events_out=None,
+                   rover_events_first: bool = False) -> dict:
+    """Solve and write the outputs. Camera events come from ``events_csv`` when given; with
+    ``rover_events_first`` the rover file's own event records win and the CSV is only the fallback."""
     out_pos = Path(out_pos)
     out_pos.parent.mkdir(parents=True, exist_ok=True)
     sol = solve_files(rover_path, base_path, nav_paths, opts)
@@ -24,8 +27,10 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
     parquet_path = Path(parquet_path) if parquet_path else out_pos.with_suffix(".parquet")
     write_parquet(parquet_path, sol, epsg)
     events = np.asarray(sol.event_time_s, dtype=float)
-    if events_csv:
+    events_source = f"event records in {Path(rover_path).name}" if len(events) else None
+    if events_csv and not (rover_events_first and len(events)):
         events = read_event_csv(events_csv)
+        events_source = str(events_csv)
     summary = {
         "epochs": int(len(sol.time_s)),
         "fix": int(np.sum(sol.status == 1)), "float": int(np.sum(sol.status == 2)), "single": int(np.sum(sol.status == 5)),
@@ -40,7 +45,8 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
         events_out = Path(events_out) if events_out else out_pos.with_name(out_pos.stem + "_events.csv")
         write_event_csv(events_out, ev, epsg)
         summary["events"] = {"count": int(len(events)), "fixed": int(np.sum(ev.status == 1)),
-                             "without_solution": int(np.sum(ev.status == 0)), "csv": str(events_out)}
+                             "without_solution": int(np.sum(ev.status == 0)), "csv": str(events_out),
+                             "source": events_source}
     summary_path = out_pos.with_name(out_pos.stem + "_summary.json")
     summary_path.write_text(json.dumps(summary, indent=2))
     summary["outputs"]["summary"] = str(summary_path)
@@ -103,7 +109,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json) into
     ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
     'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
-    ``known_start_ecef_m``, ``epsg``. 'auto' picks dual frequency when the rover records a second band,
+    ``known_start_ecef_m``, ``epsg``, and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
+    (ratio-test threshold), ``navsys`` ('G,E,...'). 'auto' picks dual frequency when the rover records a second band,
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
     from ..errors import InputFileError
 
@@ -131,7 +138,13 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     known = opt.get("known_start_ecef_m") or meta.get("takeoff_antenna_ecef_m")
     if mode == "auto":
         mode = "known-start" if (n_bands == 1 and known is not None) else "kinematic"
-    kw = dict(mode=mode, n_bands=n_bands, filter_direction=opt.get("direction", "combined"))
+    kw = dict(mode=mode, n_bands=n_bands, filter_direction=opt.get("direction", opt.get("filter", "combined")))
+    for key, field, cast in (("elmask", "elevation_mask_deg", float), ("ar", "ar_mode", str),
+                             ("ratio", "ratio_threshold", float)):
+        if opt.get(key) is not None:
+            kw[field] = cast(opt[key])
+    if opt.get("navsys"):
+        kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())
     if mode == "known-start":
         if known is None:
             raise InputFileError(survey_dir / "survey.json", "known-start mode needs the take-off antenna position "
@@ -140,24 +153,38 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     if opt.get("base_position_ecef_m") is not None:
         kw["base_position_ecef_m"] = tuple(float(v) for v in opt["base_position_ecef_m"])
     rtk = RtkOptions(**kw)
+    try:
+        rtk.validate()
+    except ValueError as exc:
+        from ..errors import ProcessingError
+
+        raise ProcessingError(f"GNSS settings: {exc}") from None
     events_csv = survey_dir / "events.csv" if (survey_dir / "events.csv").is_file() else None
     epsg = opt.get("epsg")
     if epsg is None and meta.get("project_crs", "").upper().startswith("EPSG:"):
         epsg = int(meta["project_crs"].split(":")[1])
-    summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=None, epsg=epsg,
-                             events_out=out / "events.csv")
-    if "events" not in summary and events_csv is not None:
-        summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=events_csv,
-                                 epsg=epsg, events_out=out / "events.csv")
-        summary["events"]["source"] = str(events_csv)
-    elif "events" in summary:
-        summary["events"]["source"] = f"event records in {rovers[0].name}"
-    summary["inputs"] = {"rover": str(rovers[0]), "base": str(bases[0]), "nav": [str(p) for p in navs]}
+    summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=events_csv,
+                             epsg=epsg, events_out=out / "events.csv", rover_events_first=True)
+    # paths relative to the run folder, so a moved or re-used run folder stays valid
+    summary["outputs"] = {k: _relative_to(v, out_dir) for k, v in summary["outputs"].items()}
+    if "events" in summary:
+        summary["events"]["csv"] = _relative_to(summary["events"]["csv"], out_dir)
+        if summary["events"]["source"] and Path(summary["events"]["source"]).is_absolute():
+            summary["events"]["source"] = _relative_to(summary["events"]["source"], survey_dir)
+    summary["inputs"] = {"rover": _relative_to(rovers[0], survey_dir), "base": _relative_to(bases[0], survey_dir),
+                         "nav": [_relative_to(p, survey_dir) for p in navs]}
     summary["options"] = {"mode": mode, "n_bands": n_bands, "direction": kw["filter_direction"]}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if progress:
         progress("gnss", 1, 1)
     return summary
+
+
+def _relative_to(path, root) -> str:
+    try:
+        return Path(path).resolve().relative_to(Path(root).resolve()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def sniff_ubx(path) -> bool:

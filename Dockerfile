@@ -1,0 +1,25 @@
+# One image for the API, the workers and beat (docker-compose.yml picks the command).
+FROM python:3.11-slim-bookworm
+
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    GEOREF_DATA_DIR=/data OMP_NUM_THREADS=1
+
+# open3d needs libusb and libgomp at run time; curl for the health checks
+RUN apt-get update -qq \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 curl \
+ && rm -rf /var/lib/apt/lists/*
+
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY georef_core ./georef_core
+COPY backend ./backend
+COPY worker ./worker
+RUN pip install -q .
+
+RUN useradd --create-home --uid 10001 georef && mkdir -p /data && chown georef /data
+USER georef
+VOLUME /data
+EXPOSE 8000
+
+# default: the API (migrations run first; safe to run on every start)
+CMD ["sh", "-c", "python -m backend.db.migrate && exec uvicorn backend.main:app --host 0.0.0.0 --port 8000 --workers ${API_WORKERS:-2} --proxy-headers --forwarded-allow-ips='*'"]

@@ -1,0 +1,105 @@
+"""Response shaping shared by the routes: JSON with ETag / 304, pages with Link headers, files with
+Range support (COG readers fetch byte ranges), rendered results."""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Any
+
+from fastapi import Request, Response
+from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import BaseModel
+
+from ..core.etag import bytes_etag, if_none_match_hits, version_etag
+from ..core.problems import RangeNotSatisfiable
+from ..services.pagination import Page
+from ..storage import Storage, blob_key
+
+
+def _dump(data: Any) -> Any:
+    if isinstance(data, BaseModel):
+        return data.model_dump(mode="json")
+    if isinstance(data, list):
+        return [_dump(x) for x in data]
+    return data
+
+
+def json_response(request: Request, data: Any, status_code: int = 200, etag: str | None = None,
+                  headers: dict | None = None) -> Response:
+    body = json.dumps(_dump(data), separators=(",", ":"), default=str).encode()
+    tag = etag or bytes_etag(body)
+    h = {"ETag": tag, "Cache-Control": "private, no-cache", **(headers or {})}
+    if status_code == 200 and request.method in ("GET", "HEAD") and if_none_match_hits(
+            request.headers.get("if-none-match"), tag):
+        return Response(status_code=304, headers=h)
+    return Response(body, status_code=status_code, media_type="application/json", headers=h)
+
+
+def model_response(request: Request, schema: type[BaseModel], obj, status_code: int = 200,
+                   headers: dict | None = None) -> Response:
+    """One row: its ETag comes from its version counter (If-Match on PATCH/DELETE compares it)."""
+    data = schema.model_validate(obj)
+    tag = version_etag(obj) if hasattr(obj, "version") else None
+    return json_response(request, data, status_code, tag, headers)
+
+
+def page_response(request: Request, page: Page, schema: type[BaseModel]) -> Response:
+    items = [schema.model_validate(x).model_dump(mode="json") for x in page.items]
+    links = []
+    if page.offset + page.limit < page.total:
+        nxt = request.url.include_query_params(offset=page.offset + page.limit, limit=page.limit)
+        links.append(f'<{nxt}>; rel="next"')
+    if page.offset > 0:
+        prv = request.url.include_query_params(offset=max(0, page.offset - page.limit), limit=page.limit)
+        links.append(f'<{prv}>; rel="prev"')
+    headers = {"X-Total-Count": str(page.total)}
+    if links:
+        headers["Link"] = ", ".join(links)
+    return json_response(request, {"items": items, "total": page.total, "limit": page.limit, "offset": page.offset},
+                         headers=headers)
+
+
+def bytes_response(request: Request, body: bytes, media_type: str, etag: str, filename: str | None = None) -> Response:
+    h = {"ETag": etag, "Cache-Control": "private, max-age=0, must-revalidate"}
+    if filename:
+        h["Content-Disposition"] = f'attachment; filename="{filename}"'
+    if if_none_match_hits(request.headers.get("if-none-match"), etag):
+        return Response(status_code=304, headers=h)
+    return Response(body, media_type=media_type, headers=h)
+
+
+_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
+
+
+def blob_response(request: Request, storage: Storage, sha256: str, size: int, media_type: str,
+                  filename: str | None = None) -> Response:
+    etag = f'"{sha256[:32]}"'
+    headers = {"ETag": etag, "Accept-Ranges": "bytes", "Cache-Control": "private, max-age=0, must-revalidate"}
+    if filename:
+        headers["Content-Disposition"] = f'attachment; filename="{filename}"'
+    if if_none_match_hits(request.headers.get("if-none-match"), etag):
+        return Response(status_code=304, headers=headers)
+    key = blob_key(sha256)
+    local = storage.local_path(key)
+    if local is not None:
+        return FileResponse(local, media_type=media_type, headers=headers, filename=None)
+    rng = request.headers.get("range")
+    if rng:
+        m = _RANGE.match(rng.strip())
+        if not m or (not m.group(1) and not m.group(2)):
+            raise RangeNotSatisfiable("Range: one 'bytes=START-END' range supported", headers={
+                "Content-Range": f"bytes */{size}"})
+        if m.group(1):
+            start = int(m.group(1))
+            end = min(int(m.group(2)) + 1, size) if m.group(2) else size
+        else:
+            start, end = max(0, size - int(m.group(2))), size
+        if start >= size or end <= start:
+            raise RangeNotSatisfiable("range outside the file", headers={"Content-Range": f"bytes */{size}"})
+        headers["Content-Range"] = f"bytes {start}-{end - 1}/{size}"
+        headers["Content-Length"] = str(end - start)
+        return StreamingResponse(storage.iter_bytes(key, start, end), status_code=206, media_type=media_type,
+                                 headers=headers)
+    headers["Content-Length"] = str(size)
+    return StreamingResponse(storage.iter_bytes(key), media_type=media_type, headers=headers)

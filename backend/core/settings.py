@@ -1,0 +1,88 @@
+"""Typed settings of the web platform, read from the environment (prefix GEOREF_) and an optional .env file.
+
+The embedded default (one laptop: SQLite, files on local disk, a Celery broker in a SQLite file) needs no
+variable at all; the production shape (docker-compose.yml) sets the database, broker and S3 variables."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="GEOREF_", env_file=".env", extra="ignore")
+
+    # --- where everything lives (embedded shape)
+    data_dir: Path = Path("work_out/platform")
+    database_url: str = ""            # default: sqlite:///{data_dir}/georef.sqlite
+    broker_url: str = ""              # default: sqla+sqlite:///{data_dir}/broker.sqlite
+    # --- storage of uploaded files and results
+    storage: Literal["local", "s3"] = "local"
+    storage_dir: Path | None = None   # local: default {data_dir}/storage
+    s3_endpoint_url: str | None = None
+    s3_bucket: str = "georef"
+    s3_region: str = "us-east-1"
+    s3_access_key_id: str | None = None
+    s3_secret_access_key: str | None = None
+    work_dir: Path | None = None      # worker scratch (materialised surveys, run folders); default {data_dir}/work
+
+    # --- web
+    secret_key: str = "change-me-in-production"   # signs nothing secret-critical yet; used as webhook/test pepper
+    cookie_secure: bool = True
+    session_hours: float = 12.0
+    cors_origins: list[str] = Field(default_factory=list)
+    frontend_dist: Path | None = None  # default: <repo>/frontend/dist when it exists
+    public_url: str = "http://127.0.0.1:8000"
+    max_concurrent_requests: int = 32          # per API process; the database pool holds 60 connections
+
+    # --- uploads
+    max_upload_bytes: int = 20 * 1024**3      # one file (an image archive can be GBs)
+    max_chunk_bytes: int = 64 * 1024**2
+    max_archive_members: int = 20000
+    max_archive_total_bytes: int = 40 * 1024**3
+    max_archive_ratio: float = 200.0          # uncompressed / compressed, per member and in total
+    upload_expiry_hours: float = 72.0
+
+    # --- jobs
+    heavy_queue: str = "heavy"       # georef and dense go there; '' = everything on the default queue
+    default_queue: str = "georef"
+    step_lease_s: float = 60.0       # a running step whose heartbeat is older than this is taken over
+    requeue_queued_after_s: float = 600.0
+    visibility_timeout_s: int = 3600      # Redis: an unacknowledged message is redelivered after this
+    broker_restore_interval_s: int = 30   # Redis: how often workers look for such messages
+    task_max_retries: int = 5
+    schedule_tick_s: float = 60.0
+    new_data_debounce_s: float = 300.0
+    webhook_timeout_s: float = 10.0
+    webhook_max_attempts: int = 8
+
+    def resolved_database_url(self) -> str:
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'georef.sqlite').resolve()}"
+
+    def resolved_broker_url(self) -> str:
+        if self.broker_url:
+            return self.broker_url
+        return f"sqla+sqlite:///{(self.data_dir / 'broker.sqlite').resolve()}"
+
+    def resolved_storage_dir(self) -> Path:
+        return (self.storage_dir or self.data_dir / "storage").resolve()
+
+    def resolved_work_dir(self) -> Path:
+        return (self.work_dir or self.data_dir / "work").resolve()
+
+    def resolved_frontend_dist(self) -> Path | None:
+        if self.frontend_dist is not None:
+            return self.frontend_dist if self.frontend_dist.is_dir() else None
+        p = Path(__file__).resolve().parents[2] / "frontend" / "dist"
+        return p if (p / "index.html").is_file() else None
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

@@ -1,0 +1,67 @@
+"""Sites (a construction site with its CRS), per-site roles, stockpiles and reprocessing schedules."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from sqlalchemy import JSON, Boolean, ForeignKey, String, Text, UniqueConstraint
+from sqlalchemy.orm import Mapped, mapped_column
+
+from .base import Base, IdMixin, TimestampMixin, VersionMixin
+
+ROLES = ("viewer", "editor", "admin")
+
+
+class Site(IdMixin, TimestampMixin, VersionMixin, Base):
+    __tablename__ = "sites"
+    organisation_id: Mapped[str] = mapped_column(ForeignKey("organisations.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    crs: Mapped[str] = mapped_column(String(64))                    # "EPSG:32653": project CRS (E, N)
+    vertical_datum: Mapped[str | None] = mapped_column(String(64), default=None)   # e.g. "EPSG:5773"
+    geoid: Mapped[str | None] = mapped_column(String(200), default=None)          # geoid model name/file
+    description: Mapped[str] = mapped_column(Text, default="")
+    # accuracy tolerance of the site's check points (residual tables are coloured against it)
+    tolerance_horizontal_m: Mapped[float] = mapped_column(default=0.03)
+    tolerance_vertical_m: Mapped[float] = mapped_column(default=0.05)
+
+
+class SiteRole(Base):
+    __tablename__ = "site_roles"
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), primary_key=True)
+    user_id: Mapped[str] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), primary_key=True, index=True)
+    role: Mapped[str] = mapped_column(String(16))
+
+
+class Stockpile(IdMixin, TimestampMixin, VersionMixin, Base):
+    """A stockpile's persistent outline (GeoJSON Polygon in the site CRS) and how its base is defined."""
+
+    __tablename__ = "stockpiles"
+    __table_args__ = (UniqueConstraint("site_id", "name"),)
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    outline: Mapped[dict] = mapped_column(JSON)
+    base: Mapped[str] = mapped_column(String(64), default="lowest")
+    material: Mapped[str] = mapped_column(String(100), default="")
+    density_t_m3: Mapped[float | None] = mapped_column(default=None)
+
+
+class Schedule(IdMixin, TimestampMixin, VersionMixin, Base):
+    """Reprocessing of a site's surveys: on a cadence and/or when new base data or points arrive."""
+
+    __tablename__ = "schedules"
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    cadence: Mapped[str] = mapped_column(String(16), default="daily")   # none | hourly | daily | weekly
+    at_utc: Mapped[str] = mapped_column(String(5), default="02:00")     # HH:MM (daily, weekly); MM (hourly)
+    weekday: Mapped[int] = mapped_column(default=0)                     # weekly: 0 = Monday
+    on_new_base: Mapped[bool] = mapped_column(Boolean, default=False)
+    on_new_points: Mapped[bool] = mapped_column(Boolean, default=False)
+    scope: Mapped[str] = mapped_column(String(16), default="latest")   # latest survey | all surveys
+    only_if_changed: Mapped[bool] = mapped_column(Boolean, default=True)
+    steps: Mapped[list | None] = mapped_column(JSON, default=None)
+    settings: Mapped[dict] = mapped_column(JSON, default=dict)
+    enabled: Mapped[bool] = mapped_column(Boolean, default=True)
+    next_run_at: Mapped[datetime | None] = mapped_column(default=None, index=True)
+    pending_survey_ids: Mapped[list] = mapped_column(JSON, default=list)   # new-data triggers waiting
+    pending_since: Mapped[datetime | None] = mapped_column(default=None)
+    last_run_at: Mapped[datetime | None] = mapped_column(default=None)

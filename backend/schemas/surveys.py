@@ -1,0 +1,106 @@
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+from .common import ORM
+
+
+class SurveyIn(BaseModel):
+    name: str = Field(min_length=1, max_length=200)
+    flown_at: datetime | None = None
+    notes: str = Field(default="", max_length=20000)
+    settings: dict = Field(default_factory=dict, description="processing options by step: {gnss: {...}, ...}")
+
+
+class SurveyPatch(BaseModel):
+    name: str | None = Field(default=None, min_length=1, max_length=200)
+    flown_at: datetime | None = None
+    notes: str | None = Field(default=None, max_length=20000)
+    settings: dict | None = None
+
+
+class SurveyOut(ORM):
+    id: str
+    site_id: str
+    name: str
+    flown_at: datetime | None
+    notes: str
+    settings: dict
+    created_at: datetime
+    updated_at: datetime
+    version: int
+
+
+class SurveyFileOut(ORM):
+    id: str
+    path: str
+    kind: str
+    role: str | None
+    size: int
+    sha256: str
+    meta: dict | None
+    created_at: datetime
+
+
+class FileRoleIn(BaseModel):
+    role: Literal["rover", "base"]
+
+
+class PointOut(BaseModel):
+    name: str
+    easting_m: float
+    northing_m: float
+    ellipsoidal_height_m: float
+    role: str
+
+
+class PointRoleIn(BaseModel):
+    role: Literal["control", "check"]
+
+
+class CheckProblem(BaseModel):
+    severity: Literal["error", "warning", "info"]
+    code: str
+    message: str
+    files: list[str]
+
+
+class CheckOut(BaseModel):
+    survey_id: str
+    ok: bool
+    errors: int
+    warnings: int
+    problems: list[CheckProblem]
+    files: dict[str, int]
+
+
+UploadKind = Literal["rover", "base", "nav", "images", "image", "events", "points", "gcp_list", "survey_metadata",
+                     "archive"]
+
+
+class UploadIn(BaseModel):
+    filename: str = Field(min_length=1, max_length=1000)
+    size: int = Field(gt=0, description="bytes")
+    sha256: str = Field(pattern=r"^[0-9a-fA-F]{64}$")
+    kind: UploadKind | None = None
+    role: Literal["rover", "base"] | None = None
+
+
+class UploadOut(ORM):
+    id: str
+    survey_id: str
+    filename: str
+    size: int
+    sha256: str
+    kind: str | None
+    role: str | None
+    state: str
+    received_bytes: int
+    error: str | None
+    result: dict | None
+    created_at: datetime
+    expires_at: datetime | None
+    max_chunk_bytes: int = 0

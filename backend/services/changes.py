@@ -1,0 +1,92 @@
+"""What a finished run changed against the previous successful run of the same survey (inputs,
+settings, GNSS fix rate, check-point RMSE, stockpile volumes), and the notifications of its end."""
+
+from __future__ import annotations
+
+import json
+
+from sqlalchemy import select
+
+from ..models import Run, RunOutput, VolumeMeasurement
+from ..storage import Storage, blob_key
+from . import result_files
+from .webhooks import enqueue_event
+
+
+def _json_output(s, storage: Storage, run_id: str, paths) -> dict | None:
+    for p in paths:
+        o = s.scalar(select(RunOutput).where(RunOutput.run_id == run_id, RunOutput.path == p))
+        if o is not None:
+            try:
+                return json.loads(storage.read_bytes(blob_key(o.sha256)))
+            except (OSError, ValueError):
+                return None
+    return None
+
+
+def _rmse(s, storage: Storage, run_id: str) -> float | None:
+    oj = s.scalar(select(RunOutput).where(RunOutput.run_id == run_id, RunOutput.path == "residuals.json"))
+    oc = s.scalar(select(RunOutput).where(RunOutput.run_id == run_id, RunOutput.path == "residuals.csv"))
+    if oj is None and oc is None:
+        return None
+    try:
+        res = result_files.normalise_residuals(storage.read_bytes(blob_key(oj.sha256)).decode() if oj else None,
+                                               storage.read_bytes(blob_key(oc.sha256)).decode() if oc else None)
+    except (OSError, ValueError):
+        return None
+    st = result_files.residual_stats([p for p in res["points"] if p.get("d_m") is not None])
+    return (st.get("d_m") or {}).get("rmse")
+
+
+def _volumes(s, run_id: str) -> dict[str, float | None]:
+    return {v.stockpile_name: v.volume_m3 for v in s.scalars(select(VolumeMeasurement)
+                                                             .where(VolumeMeasurement.run_id == run_id))}
+
+
+def run_metrics(s, storage: Storage, run_id: str) -> dict:
+    gs = _json_output(s, storage, run_id, ("ppk/summary.json", "ppk/trajectory_summary.json")) or {}
+    return {"fix_rate": gs.get("fix_rate"), "rmse_d_m": _rmse(s, storage, run_id), "volumes": _volumes(s, run_id)}
+
+
+def compute_changes(s, storage: Storage, run: Run) -> dict:
+    prev = s.get(Run, run.previous_run_id) if run.previous_run_id else None
+    now = run_metrics(s, storage, run.id)
+    if prev is None:
+        return {"previous_run_id": None, "note": "first successful run of this survey", "current": now}
+    before = run_metrics(s, storage, prev.id)
+    a, b = prev.inputs or {}, run.inputs or {}
+    inputs = {"added": sorted(set(b) - set(a)), "removed": sorted(set(a) - set(b)),
+              "modified": sorted(k for k in set(a) & set(b) if a[k] != b[k])}
+    settings_changed = sorted(k for k in set(prev.settings or {}) | set(run.settings or {})
+                              if (prev.settings or {}).get(k) != (run.settings or {}).get(k))
+    vols = {}
+    for name in sorted(set(before["volumes"]) | set(now["volumes"])):
+        v0, v1 = before["volumes"].get(name), now["volumes"].get(name)
+        vols[name] = {"previous_m3": v0, "current_m3": v1,
+                      "change_m3": (v1 - v0) if (v0 is not None and v1 is not None) else None}
+
+    def delta(k):
+        x0, x1 = before.get(k), now.get(k)
+        return {"previous": x0, "current": x1, "change": (x1 - x0) if (x0 is not None and x1 is not None) else None}
+
+    return {"previous_run_id": prev.id, "previous_run_number": prev.number, "inputs": inputs,
+            "settings_changed": settings_changed, "fix_rate": delta("fix_rate"), "rmse_d_m": delta("rmse_d_m"),
+            "volumes": vols}
+
+
+def on_run_finished(db, storage: Storage, run_id: str) -> list[tuple]:
+    """Record the comparison and queue the webhook deliveries; messages to send after commit."""
+    with db.session() as s:
+        run = s.get(Run, run_id)
+        if run is None:
+            return []
+        if run.state == "succeeded":
+            try:
+                run.changes = compute_changes(s, storage, run)
+            except Exception as exc:   # a comparison must never turn a finished run into an error
+                run.changes = {"error": f"comparison failed: {type(exc).__name__}: {exc}"}
+        payload = {"run_id": run.id, "run_number": run.number, "survey_id": run.survey_id, "site_id": run.site_id,
+                   "state": run.state, "error": run.error, "trigger": run.trigger,
+                   "finished_at": run.finished_at.isoformat() if run.finished_at else None,
+                   "changes": run.changes if run.state == "succeeded" else None}
+        return enqueue_event(s, run.site_id, f"run.{run.state}", payload)

@@ -1,0 +1,427 @@
+"""Results of a run, in the formats GIS systems and surveyors use: JSON, CSV, GeoJSON (RFC 7946: WGS84
+longitude/latitude, ellipsoidal height as third coordinate), RTKLIB .pos, COG GeoTIFF, LAS/LAZ, PDF.
+
+Rendered representations are cached in memory keyed by the SHA-256 of their source file (content
+addressed: a cache entry can never be stale); the SHA is also the ETag."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from functools import lru_cache
+
+from sqlalchemy import select
+
+from ..core.problems import Conflict, NotFound, Unprocessable
+from ..models import Run, RunOutput, Site, Survey, VolumeMeasurement
+from ..storage import blob_key
+from . import result_files
+from .context import Ctx
+from .permissions import require_run, require_survey
+
+PATHS = {
+    "trajectory": ("ppk/trajectory.pos",),
+    "camera_positions": ("ppk/events.csv", "ppk/trajectory_events.csv"),
+    "gnss_summary": ("ppk/summary.json", "ppk/trajectory_summary.json"),
+    "residuals_json": ("residuals.json",),
+    "residuals_csv": ("residuals.csv",),
+    "lever_arm": ("lever_arm_delay.json",),
+    "dsm": ("dense/dsm.tif",),
+    "ortho": ("dense/ortho.tif",),
+    "point_cloud": ("dense/points.laz", "dense/points.las"),
+    "report": ("report/accuracy_report.pdf",),
+    "volumes": ("volumes/volumes.json",),
+}
+MEDIA = {".json": "application/json", ".csv": "text/csv; charset=utf-8", ".pos": "text/plain; charset=utf-8",
+         ".tif": "image/tiff; application=geotiff; profile=cloud-optimized", ".laz": "application/vnd.laszip",
+         ".las": "application/vnd.las", ".pdf": "application/pdf", ".png": "image/png",
+         ".parquet": "application/vnd.apache.parquet", ".txt": "text/plain; charset=utf-8",
+         ".geojson": "application/geo+json"}
+
+
+def media_type(path: str) -> str:
+    for ext, mt in MEDIA.items():
+        if path.lower().endswith(ext):
+            return mt
+    return "application/octet-stream"
+
+
+@dataclass
+class Rendered:
+    body: bytes
+    media_type: str
+    etag: str
+    filename: str | None = None
+
+
+class _Cache:
+    def __init__(self, max_bytes: int = 256 * 1024**2):
+        self.max_bytes = max_bytes
+        self.size = 0
+        self.items: OrderedDict[tuple, Rendered] = OrderedDict()
+        self.lock = threading.Lock()
+
+    def get(self, key):
+        with self.lock:
+            v = self.items.get(key)
+            if v is not None:
+                self.items.move_to_end(key)
+            return v
+
+    def put(self, key, value: Rendered):
+        with self.lock:
+            if key in self.items:
+                return
+            self.items[key] = value
+            self.size += len(value.body)
+            while self.size > self.max_bytes and self.items:
+                _, old = self.items.popitem(last=False)
+                self.size -= len(old.body)
+
+
+_cache = _Cache()
+
+
+def list_outputs(ctx: Ctx, run_id: str) -> list[RunOutput]:
+    require_run(ctx, run_id, "viewer")
+    return list(ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run_id).order_by(RunOutput.path)))
+
+
+def _output(ctx: Ctx, run: Run, what: str, required: bool = True) -> RunOutput | None:
+    paths = PATHS[what]
+    rows = {o.path: o for o in ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run.id,
+                                                                      RunOutput.path.in_(paths)))}
+    for p in paths:
+        if p in rows:
+            return rows[p]
+    if required:
+        if run.state in ("queued", "running"):
+            raise Conflict(f"{what.replace('_', ' ')} not produced yet (run is {run.state})")
+        raise NotFound(f"this run has no {what.replace('_', ' ')} (step not run, unavailable or failed)")
+    return None
+
+
+def output_by_path(ctx: Ctx, run_id: str, path: str) -> RunOutput:
+    require_run(ctx, run_id, "viewer")
+    o = ctx.db.scalar(select(RunOutput).where(RunOutput.run_id == run_id, RunOutput.path == path))
+    if o is None:
+        raise NotFound(f"no output {path!r} in this run")
+    return o
+
+
+def output_for(ctx: Ctx, run_id: str, what: str) -> RunOutput:
+    run = require_run(ctx, run_id, "viewer")
+    return _output(ctx, run, what)
+
+
+def _text(ctx: Ctx, o: RunOutput) -> str:
+    return ctx.storage.read_bytes(blob_key(o.sha256)).decode("utf-8", errors="replace")
+
+
+@lru_cache(maxsize=64)
+def _to_wgs84(crs: str):
+    from pyproj import Transformer
+
+    return Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+
+
+def _csv_bytes(rows: list[dict], columns: list[str] | None = None) -> bytes:
+    buf = io.StringIO()
+    cols = columns or (list(rows[0].keys()) if rows else [])
+    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols})
+    return buf.getvalue().encode()
+
+
+def _geojson_bytes(features: list[dict], extra: dict | None = None) -> bytes:
+    fc = {"type": "FeatureCollection", "features": features}
+    if extra:
+        fc.update(extra)
+    return json.dumps(fc, separators=(",", ":")).encode()
+
+
+def _json_bytes(obj) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), default=str).encode()
+
+
+def _check_format(fmt: str, allowed: tuple[str, ...]) -> None:
+    if fmt not in allowed:
+        raise Unprocessable(f"format: one of {', '.join(allowed)}")
+
+
+def _cached(key: tuple, build) -> Rendered:
+    hit = _cache.get(key)
+    if hit is None:
+        hit = build()
+        _cache.put(key, hit)
+    return hit
+
+
+def trajectory(ctx: Ctx, run_id: str, fmt: str, every: int) -> Rendered:
+    _check_format(fmt, ("json", "csv", "geojson", "pos"))
+    every = max(1, min(int(every), 100000))
+    run = require_run(ctx, run_id, "viewer")
+    o = _output(ctx, run, "trajectory")
+    if fmt == "pos":
+        return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "text/plain; charset=utf-8", f'"{o.sha256[:32]}"',
+                        f"run{run.number}_trajectory.pos")
+
+    def build():
+        rows = result_files.parse_pos(_text(ctx, o))[::every]
+        etag = f'"{o.sha256[:24]}-{fmt}-{every}"'
+        if fmt == "json":
+            return Rendered(_json_bytes({"run_id": run_id, "count": len(rows), "heights": "ellipsoidal (WGS84)",
+                                         "epochs": rows}), "application/json", etag)
+        if fmt == "csv":
+            return Rendered(_csv_bytes(rows), "text/csv; charset=utf-8", etag, f"run{run.number}_trajectory.csv")
+        feats = [{"type": "Feature", "geometry": {"type": "LineString",
+                                                  "coordinates": [[r["lon_deg"], r["lat_deg"], r["height_m"]]
+                                                                  for r in rows]},
+                  "properties": {"kind": "trajectory", "epochs": len(rows)}}] if len(rows) >= 2 else []
+        feats += [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [r["lon_deg"], r["lat_deg"],
+                                                                                    r["height_m"]]},
+                   "properties": {k: v for k, v in r.items() if k not in ("lat_deg", "lon_deg", "height_m")}}
+                  for r in rows]
+        return Rendered(_geojson_bytes(feats), "application/geo+json", etag, f"run{run.number}_trajectory.geojson")
+    return _cached(("traj", o.sha256, fmt, every), build)
+
+
+def camera_positions(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
+    _check_format(fmt, ("json", "csv", "geojson"))
+    run = require_run(ctx, run_id, "viewer")
+    o = _output(ctx, run, "camera_positions")
+    if fmt == "csv":
+        return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "text/csv; charset=utf-8", f'"{o.sha256[:32]}"',
+                        f"run{run.number}_camera_positions.csv")
+
+    def build():
+        rows = result_files.parse_csv(_text(ctx, o))
+        etag = f'"{o.sha256[:24]}-{fmt}"'
+        if fmt == "json":
+            return Rendered(_json_bytes({"run_id": run_id, "count": len(rows), "events": rows}), "application/json", etag)
+        feats = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [r["lon_deg"], r["lat_deg"],
+                                                                                   r.get("height_ellipsoid_m")]},
+                  "properties": {k: v for k, v in r.items() if k not in ("lat_deg", "lon_deg")}}
+                 for r in rows if r.get("lat_deg") is not None]
+        return Rendered(_geojson_bytes(feats), "application/geo+json", etag)
+    return _cached(("cam", o.sha256, fmt), build)
+
+
+def _points_of_run(ctx: Ctx, run: Run) -> dict[str, dict]:
+    sha = (run.inputs or {}).get("gcp/points.csv")
+    if not sha:
+        return {}
+    from .file_kinds import parse_points_csv
+
+    try:
+        pts = parse_points_csv(ctx.storage.read_bytes(blob_key(sha)).decode("utf-8-sig", errors="replace"))
+    except ValueError:
+        return {}
+    return {p["name"]: p for p in pts}
+
+
+def residuals_data(ctx: Ctx, run: Run) -> dict:
+    oj = _output(ctx, run, "residuals_json", required=False)
+    oc = _output(ctx, run, "residuals_csv", required=False)
+    if oj is None and oc is None:
+        _output(ctx, run, "residuals_json")   # raises the right problem
+    return result_files.normalise_residuals(_text(ctx, oj) if oj else None, _text(ctx, oc) if oc else None)
+
+
+def residuals(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
+    _check_format(fmt, ("json", "csv", "geojson"))
+    run = require_run(ctx, run_id, "viewer")
+    oj = _output(ctx, run, "residuals_json", required=False)
+    oc = _output(ctx, run, "residuals_csv", required=False)
+    src = (oj or oc or _output(ctx, run, "residuals_json")).sha256
+    if fmt == "csv" and oc is not None:
+        return Rendered(ctx.storage.read_bytes(blob_key(oc.sha256)), "text/csv; charset=utf-8", f'"{oc.sha256[:32]}"',
+                        f"run{run.number}_residuals.csv")
+
+    def build():
+        data = residuals_data(ctx, run)
+        etag = f'"{src[:24]}-{fmt}"'
+        pts = [{k: v for k, v in p.items() if not isinstance(v, (dict, list))} for p in data["points"]]
+        if fmt == "json":
+            return Rendered(_json_bytes({"run_id": run_id, "units": "m", "points": pts, "stats": data["stats"],
+                                         "source": data["raw"]}), "application/json", etag)
+        if fmt == "csv":
+            return Rendered(_csv_bytes(pts), "text/csv; charset=utf-8", etag, f"run{run.number}_residuals.csv")
+        site = ctx.db.get(Site, run.site_id)
+        known = _points_of_run(ctx, run)
+        tr = _to_wgs84(site.crs)
+        feats = []
+        for p in pts:
+            k = known.get(p.get("name"))
+            if k is None:
+                continue
+            lon, lat = tr.transform(k["easting_m"], k["northing_m"])
+            feats.append({"type": "Feature", "geometry": {"type": "Point",
+                                                          "coordinates": [lon, lat, k["ellipsoidal_height_m"]]},
+                          "properties": {**p, "role": p.get("role") or k["role"]}})
+        return Rendered(_geojson_bytes(feats), "application/geo+json", etag)
+    return _cached(("res", src, fmt, run.site_id), build)
+
+
+def lever_arm(ctx: Ctx, run_id: str) -> Rendered:
+    run = require_run(ctx, run_id, "viewer")
+    o = _output(ctx, run, "lever_arm")
+    return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "application/json", f'"{o.sha256[:32]}"')
+
+
+def volumes_rows(db, run_id: str) -> list[VolumeMeasurement]:
+    return list(db.scalars(select(VolumeMeasurement).where(VolumeMeasurement.run_id == run_id)
+                           .order_by(VolumeMeasurement.stockpile_name)))
+
+
+def volumes(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
+    _check_format(fmt, ("json", "csv", "geojson"))
+    run = require_run(ctx, run_id, "viewer")
+    rows = volumes_rows(ctx.db, run_id)
+    if not rows:
+        _output(ctx, run, "volumes")   # raises: not produced
+    data = [{"stockpile_id": r.stockpile_id, "name": r.stockpile_name, "base": r.base, "volume_m3": r.volume_m3,
+             "sigma_m3": (r.details or {}).get("sigma_m3"), "ci95_m3": (r.details or {}).get("ci95_m3"),
+             "cut_m3": r.cut_m3, "fill_m3": r.fill_m3, "area_m2": r.area_m2,
+             "base_elevation_m": (r.details or {}).get("base_elevation_m"),
+             "measured_at": r.measured_at.isoformat() if r.measured_at else None} for r in rows]
+    body_key = json.dumps(data, sort_keys=True, default=str).encode()
+    import hashlib
+
+    etag = f'"{hashlib.sha256(body_key).hexdigest()[:24]}-{fmt}"'
+    if fmt == "json":
+        return Rendered(_json_bytes({"run_id": run_id, "units": {"volume": "m3", "area": "m2"},
+                                     "conventions": "volume_m3 = cut_m3 - fill_m3 (material above the base minus "
+                                                    "voids below it); sigma_m3: 1-sigma uncertainty",
+                                     "stockpiles": data}),
+                        "application/json", etag)
+    if fmt == "csv":
+        return Rendered(_csv_bytes(data), "text/csv; charset=utf-8", etag, f"run{run.number}_volumes.csv")
+    from .stockpiles import site_stockpiles
+
+    site = ctx.db.get(Site, run.site_id)
+    tr = _to_wgs84(site.crs)
+    outlines = {sp.id: sp.outline for sp in site_stockpiles(ctx.db, run.site_id)}
+    feats = []
+    for d in data:
+        ol = outlines.get(d["stockpile_id"])
+        geom = None
+        if ol:
+            rings = []
+            for ring in ol["coordinates"]:
+                xs, ys = tr.transform([c[0] for c in ring], [c[1] for c in ring])
+                rings.append([[x, y] for x, y in zip(xs, ys)])
+            geom = {"type": "Polygon", "coordinates": rings}
+        feats.append({"type": "Feature", "geometry": geom, "properties": d})
+    return Rendered(_geojson_bytes(feats), "application/geo+json", etag)
+
+
+def latest_report_output(ctx: Ctx, survey_id: str) -> tuple[Run, RunOutput]:
+    require_survey(ctx, survey_id, "viewer")
+    row = ctx.db.execute(select(Run, RunOutput).join(RunOutput, RunOutput.run_id == Run.id)
+                         .where(Run.survey_id == survey_id, RunOutput.path == PATHS["report"][0])
+                         .order_by(Run.number.desc()).limit(1)).first()
+    if row is None:
+        raise NotFound("no accuracy report yet: process the survey (the report step writes it)")
+    return row[0], row[1]
+
+
+def survey_of(ctx: Ctx, run: Run) -> Survey:
+    return ctx.db.get(Survey, run.survey_id)
+
+
+def check_rmse(points: list[dict]) -> dict | None:
+    import math
+
+    pts = [p for p in points if None not in (p.get("dx_m"), p.get("dy_m"), p.get("dz_m"))]
+    if not pts:
+        return None
+    n = len(pts)
+    h = math.sqrt(sum(p["dx_m"] ** 2 + p["dy_m"] ** 2 for p in pts) / n)
+    v = math.sqrt(sum(p["dz_m"] ** 2 for p in pts) / n)
+    return {"horizontal": h, "vertical": v, "3d": math.sqrt(h * h + v * v), "n": n}
+
+
+def site_summary(ctx: Ctx, site_id: str) -> dict:
+    """One request for the site overview: surveys, latest survey and run, check-point RMSE of the
+    latest run that has residuals, and the net volume of the stockpiles in the latest run with volumes."""
+    from sqlalchemy import func
+
+    from .permissions import require_site
+
+    site = require_site(ctx, site_id, "viewer")
+    n_surveys = ctx.db.scalar(select(func.count()).select_from(Survey).where(Survey.site_id == site_id)) or 0
+    latest_survey = ctx.db.scalar(select(Survey).where(Survey.site_id == site_id)
+                                  .order_by(Survey.flown_at.desc().nulls_last(), Survey.created_at.desc()).limit(1))
+    latest_run = ctx.db.scalar(select(Run).where(Run.site_id == site_id).order_by(Run.created_at.desc()).limit(1))
+    rmse = None
+    res_run = ctx.db.scalar(select(Run).join(RunOutput, RunOutput.run_id == Run.id)
+                            .where(Run.site_id == site_id, Run.state == "succeeded",
+                                   RunOutput.path.in_(PATHS["residuals_json"] + PATHS["residuals_csv"]))
+                            .order_by(Run.finished_at.desc()).limit(1))
+    if res_run is not None:
+        rmse = check_rmse(residuals_data(ctx, res_run)["points"])
+    vol_run = ctx.db.scalar(select(Run).join(VolumeMeasurement, VolumeMeasurement.run_id == Run.id)
+                            .where(Run.site_id == site_id, Run.state == "succeeded")
+                            .order_by(Run.finished_at.desc()).limit(1))
+    net = None
+    if vol_run is not None:
+        vols = [v.volume_m3 for v in volumes_rows(ctx.db, vol_run.id) if v.volume_m3 is not None]
+        net = sum(vols) if vols else None
+    return {"site_id": site.id, "surveys": int(n_surveys),
+            "latest_survey": None if latest_survey is None else {
+                "id": latest_survey.id, "name": latest_survey.name, "flown_at": latest_survey.flown_at},
+            "latest_run": None if latest_run is None else {
+                "id": latest_run.id, "survey_id": latest_run.survey_id, "number": latest_run.number,
+                "state": latest_run.state, "finished_at": latest_run.finished_at},
+            "check_rmse_m": rmse, "check_rmse_run_id": res_run.id if res_run else None,
+            "stockpiles_net_m3": net, "volumes_run_id": vol_run.id if vol_run else None,
+            "tolerance_horizontal_m": site.tolerance_horizontal_m, "tolerance_vertical_m": site.tolerance_vertical_m}
+
+
+def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
+    """Volume of an outline on the run's DSM without saving a stockpile (synchronous: one polygon on one
+    DSM takes well under a second). Same computation as the volumes step (georef_core)."""
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from .stockpiles import validate_base, validate_outline
+
+    run = require_run(ctx, run_id, "viewer")
+    outline, base = validate_outline(outline), validate_base(base)
+    o = _output(ctx, run, "dsm")
+    site = ctx.db.get(Site, run.site_id)
+    try:
+        from georef_core.errors import GeorefError
+        from georef_core.steps.volumes import run_volumes
+    except ModuleNotFoundError:
+        raise NotFound("volume computation is not installed on this server") from None
+    tmp_root = ctx.settings.resolved_work_dir() / "tmp"
+    tmp_root.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=tmp_root) as tmp:
+        dsm = ctx.storage.local_path(blob_key(o.sha256))
+        if dsm is None:
+            dsm = Path(tmp) / "dsm.tif"
+            ctx.storage.fetch(blob_key(o.sha256), dsm)
+        poly = Path(tmp) / "outline.geojson"
+        poly.write_text(json.dumps({"type": "FeatureCollection",
+                                    "crs": {"type": "name", "properties": {"name": site.crs}},
+                                    "features": [{"type": "Feature", "properties": {"name": "outline"},
+                                                  "geometry": outline}]}))
+        try:
+            doc = run_volumes(dsm, poly, None, base=base)
+        except GeorefError as exc:
+            raise Unprocessable(str(exc).replace(str(tmp) + "/", "")) from None
+    r = dict(doc["results"][0])
+    r.pop("dsm", None)
+    if isinstance(r.get("polygon"), dict):
+        r["polygon"] = {k: v for k, v in r["polygon"].items() if k != "source"}
+    r["volume_m3"] = r.get("net_m3")
+    return {"run_id": run_id, "base": base, "crs": site.crs, **r}

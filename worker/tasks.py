@@ -1,0 +1,410 @@
+"""Celery tasks: thin, idempotent, taking ids. The state machine is backend/services/jobs.py; the
+science is georef_core (worker/pipeline.py binds the two).
+
+run_step(run_id, step):
+  claim the step atomically -> materialise inputs (survey files by checksum, earlier outputs) ->
+  input hash (settings + checksums) -> reuse an identical earlier result, or call the step with a
+  progress callback (throttled DB writes; raises StepCancelled when the run was cancelled) while a
+  heartbeat thread proves the worker alive -> store new/changed files content-addressed -> record
+  outputs and queue the next step in one transaction (fenced by the attempt number) -> send."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import socket
+import threading
+import time
+import traceback
+from pathlib import Path
+
+from celery import shared_task
+from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
+
+from backend.core.queue import send_step, send_webhook
+from backend.core.settings import get_settings
+from backend.db.session import get_database
+from backend.services import jobs, steps_catalog
+from backend.services.changes import on_run_finished, run_metrics
+from backend.services.context import Ctx
+from backend.services.runs import canonical_json
+from backend.storage import blob_key, storage_for
+from backend.storage.base import sha256_of_file
+
+from . import pipeline
+
+log = logging.getLogger("georef.worker")
+WORKER_ID = f"{socket.gethostname()}:{os.getpid()}"
+PROGRESS_INTERVAL_S = 0.5
+MANIFEST = ".georef_outputs.json"
+
+
+class LostClaim(Exception):
+    """Another worker took this step over (we were presumed dead): stop, record nothing."""
+
+
+def _transient_types() -> tuple[type[BaseException], ...]:
+    types: list[type[BaseException]] = [OperationalError, PoolTimeoutError, ConnectionError, TimeoutError]
+    try:
+        from botocore.exceptions import ConnectionClosedError, EndpointConnectionError, ReadTimeoutError
+
+        types += [EndpointConnectionError, ConnectionClosedError, ReadTimeoutError]
+    except ImportError:
+        pass
+    return tuple(types)
+
+
+TRANSIENT = _transient_types()
+
+
+def _env():
+    settings = get_settings()
+    return settings, get_database(settings.resolved_database_url()), storage_for(settings)
+
+
+def _send(settings, db, storage, messages: list[tuple]) -> None:
+    for m in messages:
+        if m[0] == "step":
+            send_step(settings, m[1], m[2])
+        elif m[0] == "webhook":
+            send_webhook(settings, m[1])
+        elif m[0] == "run-finished":
+            _send(settings, db, storage, on_run_finished(db, storage, m[1]))
+            shutil.rmtree(settings.resolved_work_dir() / "runs" / m[1], ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------------------------- folders
+
+
+def _relevant(path: str, prefixes: tuple[str, ...]) -> bool:
+    return "" in prefixes or any(path == p or path.startswith(p) for p in prefixes) or not prefixes
+
+
+def materialise(storage, run: dict, step: str, run_dir: Path) -> tuple[Path, Path]:
+    info = steps_catalog.BY_NAME[step]
+    survey_dir, out_dir = run_dir / "survey", run_dir / "out"
+    survey_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for path, sha in sorted(run["inputs"].items()):
+        if not _relevant(path, info.inputs if info.inputs else ("",)):
+            continue
+        dest = survey_dir / path
+        if dest.exists() and dest.stat().st_size == (storage.size(blob_key(sha)) or -1) and \
+                _manifest(survey_dir).get(path) == sha:
+            continue
+        storage.fetch(blob_key(sha), dest, link_ok=True)   # survey files are read-only inputs: links are fine
+        _set_manifest(survey_dir, path, sha)
+    if "survey.json" not in run["inputs"]:
+        (survey_dir / "survey.json").write_text(json.dumps({"project_crs": run["site"]["crs"],
+                                                            "points_crs": run["site"]["crs"],
+                                                            "heights": "ellipsoidal (WGS84)"}, indent=1))
+    # the run folder holds exactly the recorded outputs of earlier steps (copies: steps may rewrite them)
+    recorded = {o["path"]: o["sha256"] for o in run["outputs"] if o["step"] != step}
+    have = _manifest(out_dir)
+    for f in sorted(out_dir.rglob("*")):
+        rel = f.relative_to(out_dir).as_posix()
+        if f.is_file() and rel != MANIFEST and recorded.get(rel) != have.get(rel):
+            f.unlink()
+    for path, sha in recorded.items():
+        dest = out_dir / path
+        if not dest.exists() or have.get(path) != sha:
+            storage.fetch(blob_key(sha), dest, link_ok=False)
+    _write_manifest(out_dir, recorded)
+    return survey_dir, out_dir
+
+
+def _manifest(folder: Path) -> dict:
+    try:
+        return json.loads((folder / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _write_manifest(folder: Path, data: dict) -> None:
+    (folder / MANIFEST).write_text(json.dumps(data))
+
+
+def _set_manifest(folder: Path, path: str, sha: str) -> None:
+    m = _manifest(folder)
+    m[path] = sha
+    _write_manifest(folder, m)
+
+
+def collect_outputs(storage, out_dir: Path, before: dict) -> list[tuple[str, str, int]]:
+    """Files the step created or changed, stored content-addressed: [(path, sha256, size)]."""
+    out = []
+    for f in sorted(out_dir.rglob("*")):
+        if not f.is_file() or f.is_symlink():
+            continue
+        rel = f.relative_to(out_dir).as_posix()
+        if rel == MANIFEST:
+            continue
+        sha = sha256_of_file(f)
+        if before.get(rel) == sha:
+            continue
+        storage.put_blob(f, sha)
+        out.append((rel, sha, f.stat().st_size))
+    return out
+
+
+def input_hash(run: dict, step: str) -> str:
+    info = steps_catalog.BY_NAME[step]
+    deps = set(info.depends_on) | set(steps_catalog.SOFT_AFTER.get(step, ()))
+    site = run["site"]
+    site_data = {"crs": site["crs"]}
+    if "vertical" in info.site_data:
+        site_data.update(vertical=site["vertical_datum"], geoid=site["geoid"])
+    if "stockpiles" in info.site_data:
+        site_data["stockpiles"] = [{k: p[k] for k in ("id", "name", "outline", "base")} for p in run["stockpiles"]]
+    doc = {"step": step, "version": info.version,
+           "settings": {k: run["settings"].get(k) for k in info.settings},
+           "inputs": {p: s for p, s in sorted(run["inputs"].items())
+                      if _relevant(p, info.inputs if info.inputs else ("",))},
+           "site": site_data,
+           "upstream": sorted((o["path"], o["sha256"]) for o in run["outputs"] if o["step"] in deps)}
+    if step == "report":   # the report shows the run number, names and dates: never reused
+        doc["run"] = run["run_id"]
+    return hashlib.sha256(canonical_json(doc).encode()).hexdigest()
+
+
+# ----------------------------------------------------------------------------------------------- progress
+
+
+class _Liveness:
+    """Heartbeat thread + throttled progress callback for one claimed step."""
+
+    def __init__(self, db, claim: jobs.Claim, lease_s: float):
+        self.db, self.claim = db, claim
+        self.lost = False
+        self.cancel = False
+        self._last = 0.0
+        self._stop = threading.Event()
+        self._period = max(0.5, lease_s / 4)
+        self._thread = threading.Thread(target=self._beat, name=f"heartbeat-{claim.step}", daemon=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def _beat(self):
+        while not self._stop.wait(self._period):
+            try:
+                if not jobs.heartbeat(self.db, self.claim):
+                    self.lost = True
+                    return
+            except Exception as exc:   # a missed beat is not fatal; the lease allows several
+                log.warning("heartbeat failed: %s", exc)
+
+    def progress(self, stage: str, done: int, total: int) -> None:
+        from georef_core.errors import StepCancelled
+
+        if self.lost:
+            raise LostClaim("step taken over by another worker")
+        now = time.monotonic()
+        if now - self._last >= PROGRESS_INTERVAL_S or (total and done >= total):
+            self._last = now
+            try:
+                ours, cancel = jobs.report_progress(self.db, self.claim, stage, done, total)
+            except TRANSIENT as exc:
+                log.warning("progress not recorded: %s", exc)
+                return
+            if not ours:
+                self.lost = True
+                raise LostClaim("step taken over by another worker")
+            if cancel:
+                self.cancel = True
+                raise StepCancelled(f"run cancelled during {self.claim.step}")
+
+
+# ----------------------------------------------------------------------------------------------- the step
+
+
+def execute_step(run_id: str, step: str) -> str:
+    """Claim and run one step; returns what happened. Raises only transient errors (to be retried)."""
+    from georef_core.errors import GeorefError, InputFileError, StepCancelled
+
+    settings, db, storage = _env()
+    claim = jobs.claim_step(db, run_id, step, WORKER_ID)
+    if not isinstance(claim, jobs.Claim):
+        if claim == "cancelled":
+            _send(settings, db, storage, [("run-finished", run_id)])
+        log.info("run %s step %s: nothing to do (%s)", run_id, step, claim)
+        return f"skipped: {claim}"
+    run = jobs.run_context(db, run_id)
+    try:
+        pipeline.check_available(step, run)
+    except pipeline.StepUnavailable as exc:
+        ok, msgs = jobs.mark_unavailable(db, claim, f"not available in this installation: {exc}")
+        _send(settings, db, storage, msgs)
+        return "unavailable"
+    h = input_hash(run, step)
+    if not claim.force:
+        reuse = jobs.find_reusable(db, claim.survey_id, step, h, run_id)
+        if reuse is not None and all(storage.exists(blob_key(sha)) for _, sha, _ in reuse[2]):
+            step_id, summary, outputs, src_run = reuse
+            volumes = jobs.volumes_of_run(db, src_run) if step == "volumes" else None
+            ok, msgs = jobs.finish_step(db, claim, h, outputs, summary or {}, reused_from=step_id, volumes=volumes)
+            _send(settings, db, storage, msgs)
+            return "reused" if ok else "lost"
+    run_dir = settings.resolved_work_dir() / "runs" / run_id
+    try:
+        with _Liveness(db, claim, settings.step_lease_s) as live:
+            survey_dir, out_dir = materialise(storage, run, step, run_dir)
+            before = _manifest(out_dir)
+            if step == "report":
+                run["volumes"] = jobs.volumes_of_run(db, run_id)
+                if run.get("previous_run_id"):
+                    with db.session(read_only=True) as s:
+                        prev = run_metrics(s, storage, run["previous_run_id"])
+                    run["previous_metrics"] = prev
+            t0 = time.monotonic()
+            summary = pipeline.REGISTRY[step].adapter(survey_dir, out_dir, dict(run["settings"].get(step) or {}),
+                                                      live.progress, run) or {}
+            volumes = summary.pop("_volumes", None) if isinstance(summary, dict) else None
+            summary = json.loads(_relative(json.dumps(summary, default=str), run_dir))
+            summary["duration_s"] = round(time.monotonic() - t0, 2)
+            if live.lost:
+                raise LostClaim("step taken over by another worker")
+            outputs = collect_outputs(storage, out_dir, before)
+            _write_manifest(out_dir, {**before, **{p: s for p, s, _ in outputs}})
+        ok, msgs = jobs.finish_step(db, claim, h, outputs, summary, volumes=volumes)
+        _send(settings, db, storage, msgs)
+        return "done" if ok else "lost"
+    except LostClaim:
+        log.warning("run %s step %s: taken over by another worker; result discarded", run_id, step)
+        return "lost"
+    except StepCancelled as exc:
+        ok, msgs = jobs.fail_step(db, claim, str(exc) or "cancelled", cancelled=True)
+        _send(settings, db, storage, msgs)
+        return "cancelled"
+    except TRANSIENT:
+        raise
+    except InputFileError as exc:
+        reason = f"{Path(exc.path).name if exc.path else ''}: {exc.problem}" if exc.path else str(exc)
+        ok, msgs = jobs.fail_step(db, claim, _relative(str(exc), run_dir) or reason)
+        _send(settings, db, storage, msgs)
+        return "failed"
+    except GeorefError as exc:
+        ok, msgs = jobs.fail_step(db, claim, _relative(str(exc), run_dir))
+        _send(settings, db, storage, msgs)
+        return "failed"
+    except Exception as exc:   # a bug: the run records it with the traceback in its log
+        jobs.log(db, run_id, "internal error:\n" + _relative(traceback.format_exc(limit=8), run_dir), step, "error")
+        ok, msgs = jobs.fail_step(db, claim, f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})")
+        _send(settings, db, storage, msgs)
+        return "failed"
+
+
+def _relative(text: str, run_dir: Path) -> str:
+    """Messages name files relative to the survey/run folder (the user's view), not worker paths."""
+    return text.replace(str(run_dir / "survey") + "/", "").replace(str(run_dir / "out") + "/", "")
+
+
+def release_after_transient(run_id: str, step: str, exc: BaseException) -> None:
+    settings, db, storage = _env()
+    try:
+        with db.session() as s:
+            from sqlalchemy import update
+
+            from backend.models import RunStep
+            from backend.models.base import utcnow
+
+            s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.name == step,
+                                            RunStep.state == "running", RunStep.worker == WORKER_ID)
+                      .values(state="queued", queued_at=utcnow(), error=f"retrying after: {exc}"))
+    except Exception as inner:   # the database itself may be what is down: the reaper will requeue
+        log.warning("could not release step %s of run %s: %s", step, run_id, inner)
+
+
+def give_up(run_id: str, step: str, exc: BaseException) -> None:
+    settings, db, storage = _env()
+    _send(settings, db, storage, jobs.fail_unclaimed_step(db, run_id, step,
+                                                          f"gave up after repeated transient errors: {exc}"))
+
+
+# ----------------------------------------------------------------------------------------------- tasks
+
+
+@shared_task(name="georef.run_step", bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None)
+def run_step(self, run_id: str, step: str) -> str:
+    settings = get_settings()
+    try:
+        return execute_step(run_id, step)
+    except TRANSIENT as exc:
+        release_after_transient(run_id, step, exc)
+        if self.request.retries >= settings.task_max_retries:
+            give_up(run_id, step, exc)
+            return "failed"
+        raise self.retry(exc=exc, countdown=min(60, 2 ** self.request.retries))
+
+
+@shared_task(name="georef.reap_stale_steps", acks_late=True)
+def reap_stale_steps() -> int:
+    settings, db, storage = _env()
+    msgs = jobs.reap(db, settings.step_lease_s, settings.requeue_queued_after_s)
+    _send(settings, db, storage, msgs)
+    return len(msgs)
+
+
+@shared_task(name="georef.dispatch_schedules", acks_late=True)
+def dispatch_schedules() -> int:
+    from backend.services.schedules import dispatch_due
+
+    settings, db, storage = _env()
+    s = db.sessionmaker()
+    ctx = Ctx(db=s, settings=settings, storage=storage)
+    try:
+        created = dispatch_due(ctx)
+        ctx.commit()
+    finally:
+        s.close()
+    return len(created)
+
+
+@shared_task(name="georef.deliver_webhook", bind=True, acks_late=True, max_retries=None)
+def deliver_webhook(self, delivery_id: str) -> str:
+    from backend.services.webhooks import TransientDeliveryError, deliver
+
+    settings, db, storage = _env()
+    try:
+        return deliver(db, delivery_id, settings.webhook_timeout_s, settings.webhook_max_attempts)
+    except TransientDeliveryError as exc:
+        raise self.retry(exc=exc, countdown=min(3600, 2 ** self.request.retries * 5))
+
+
+@shared_task(name="georef.expire_uploads", acks_late=True)
+def expire_uploads() -> int:
+    from backend.services.uploads import expire_uploads as expire
+
+    settings, db, storage = _env()
+    with db.session() as s:
+        return expire(s, storage)
+
+
+def clean_scratch() -> None:
+    """Remove this machine's run folders of runs that have ended."""
+    settings, db, storage = _env()
+    root = settings.resolved_work_dir() / "runs"
+    if not root.is_dir():
+        return
+    from sqlalchemy import select
+
+    from backend.models import Run
+
+    try:
+        with db.session(read_only=True) as s:
+            ids = [p.name for p in root.iterdir() if p.is_dir()]
+            ended = set(s.scalars(select(Run.id).where(Run.id.in_(ids),
+                                                       Run.state.in_(("succeeded", "failed", "cancelled")))))
+    except OperationalError:
+        return
+    for i in ended:
+        shutil.rmtree(root / i, ignore_errors=True)
