@@ -3,8 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+UI     := frontend/dist/index.html
 
-.PHONY: install run test bench clean
+.PHONY: install run test test-python test-frontend bench clean
 
 $(STAMP): pyproject.toml scripts/install_system_deps.sh
 	bash scripts/install_system_deps.sh
@@ -13,16 +14,25 @@ $(STAMP): pyproject.toml scripts/install_system_deps.sh
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
 
-install: $(STAMP)
+$(UI): frontend/package.json frontend/package-lock.json $(shell find frontend/src frontend/index.html frontend/vite.config.ts -type f 2>/dev/null)
+	cd frontend && npm ci --no-audit --no-fund --loglevel=error && npm run build
 
+install: $(STAMP) $(UI)
+
+# The embedded shape: SQLite, local file storage, an in-process Celery worker; the demo site is processed on first start.
 run: install
-	$(PY) -m georef_core.cli.main demo --out work_out/demo
+	$(PY) -m backend.serve_embedded
 
-test: install
+test: test-frontend test-python
+
+test-python: install
 	$(PY) -m pytest -q -n 2 tests
+
+test-frontend: install
+	cd frontend && npx vitest run --reporter=dot
 
 bench: install
 	$(PY) bench/gnss_vs_rtklib.py
 
 clean:
-	rm -rf $(VENV) work_out
+	rm -rf $(VENV) work_out frontend/node_modules frontend/dist

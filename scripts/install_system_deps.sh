@@ -3,6 +3,8 @@
 set -euo pipefail
 need=()
 ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || need+=(libusb-1.0-0)   # open3d
+[ -x /usr/bin/chromium ] || need+=(chromium)                                    # browser end-to-end tests (Playwright)
+command -v npm >/dev/null || need+=(nodejs npm)                                 # front-end build
 if [ ${#need[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}"
