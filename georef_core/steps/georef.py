@@ -705,7 +705,7 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
         "check_points": checks.to_dict(), "control_points_fit": fit_table.to_dict(),
         "control_leave_one_out": loo.to_dict() if loo.rows else None,
         "blunders": adj.blunders, "warnings": warnings, "plots": plots,
-        "outputs": {k: str(out / v) for k, v in {"oriented_images": "oriented_images.json", "residuals_json": "residuals.json",
+        "outputs": {k: v for k, v in {"oriented_images": "oriented_images.json", "residuals_json": "residuals.json",
                                                   "residuals_csv": "residuals.csv", "lever_arm_delay": "lever_arm_delay.json",
                                                   "sparse_points": "sparse_points.ply"}.items()},
         "options": {k: v for k, v in asdict(opts).items() if k != "gnss_options"},

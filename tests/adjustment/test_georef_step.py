@@ -1,0 +1,149 @@
+"""`georef georef` on a small simulated survey (12 images, 640 x 480, dual-frequency GNSS, five targets):
+the command's outputs, control/check switching without re-matching, blunder naming and input errors.
+The accuracy figures at realistic sizes are in bench/sim_end_to_end.py (docs/georeferencing.md)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from georef_core.cli.main import main
+
+pytest.importorskip("pycolmap")
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("georef_sim") / "site"
+    assert main(["simulate", str(out), "--seed", "11", "--small", "--quiet"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def first_run(survey, tmp_path_factory):
+    out = tmp_path_factory.mktemp("georef_out")
+    rc = main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"])
+    assert rc == 0
+    return out
+
+
+def _truth_lever_delay(survey: Path):
+    t = json.loads((survey / "truth" / "lever_arm_delay.json").read_text())
+    return np.array(t["lever_arm_cam_m"]), t["delay_s"]
+
+
+def test_outputs_and_check_point_table(survey, first_run):
+    out = first_run
+    summary = json.loads((out / "georef_summary.json").read_text())
+    assert summary["images"]["registered"] == summary["images"]["total"] == 12
+    assert summary["images"]["with_gnss"] == 12
+    assert summary["adjustment"]["converged"]
+    res = json.loads((out / "residuals.json").read_text())
+    names = {r["name"] for r in res["points"]}
+    assert names and names <= {"T02", "T04"}                 # the check points only
+    assert all(r["role"] == "check" for r in res["points"])
+    d = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in res["points"]])
+    assert np.all(np.abs(d[:, :2]) < 0.03) and np.all(np.abs(d[:, 2]) < 0.05), d
+    st = res["statistics"]
+    assert st["n"] == len(names) and st["3d"]["rmse_m"] == pytest.approx(np.sqrt(np.mean(np.sum(d ** 2, 1))))
+    csv_lines = (out / "residuals.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("point,role,dx_m,dy_m,dz_m,d3_m")
+    lad = json.loads((out / "lever_arm_delay.json").read_text())
+    lever, delay = _truth_lever_delay(survey)
+    est, sig = np.array(lad["lever_arm_cam_m"]), np.array(lad["lever_arm_sigma_m"])
+    assert np.all(np.abs(est - lever) < np.maximum(4 * sig, 0.01)), (est, sig, lever)
+    assert abs(lad["delay_s"] - delay) < max(4 * lad["delay_sigma_s"], 0.003)
+    assert "lever_z" in lad["correlations"]["names"] and "f" in lad["correlations"]["names"]
+    oriented = json.loads((out / "oriented_images.json").read_text())
+    assert len(oriented["images"]) == 12
+    for name in ("plots/check_residuals.png", "plots/gnss_residuals.png", "sparse_points.ply", "gnss_residuals.json"):
+        assert (out / name).is_file(), name
+    # paths in the summary are relative to the run folder (a moved run folder stays valid)
+    assert not any(Path(v).is_absolute() for v in summary["outputs"].values())
+
+
+def test_switching_control_and_check_reuses_matching(survey, first_run, tmp_path):
+    out = tmp_path / "switch"
+    shutil.copytree(first_run, out)
+    rc = main(["georef", str(survey), "--out", str(out), "--control", "T02,T04", "--no-leave-one-out"])
+    assert rc == 0
+    summary = json.loads((out / "georef_summary.json").read_text())
+    assert summary["timings_s"]["sfm_s"] < 2.0             # the SfM model was reused, not recomputed
+    names = {r["name"] for r in json.loads((out / "residuals.json").read_text())["points"]}
+    assert names and names <= {"T01", "T03", "T05"}
+
+
+def test_a_wrong_click_is_named(survey, first_run, tmp_path):
+    bad = tmp_path / "bad_survey"
+    bad.mkdir()
+    for item in survey.iterdir():
+        if item.name != "gcp":
+            (bad / item.name).symlink_to(item)
+    (bad / "gcp").mkdir()
+    lines = (survey / "gcp" / "gcp_list.txt").read_text().splitlines()
+    counts: dict[str, int] = {}
+    for ln in lines[1:]:
+        tok = ln.split()
+        counts[tok[6]] = counts.get(tok[6], 0) + 1
+    victim = max(counts, key=counts.get)
+    assert counts[victim] >= 3
+    for k, ln in enumerate(lines):
+        tok = ln.split()
+        if k > 0 and tok[6] == victim:
+            tok[3] = f"{float(tok[3]) + 40.0:.2f}"         # clicked 40 px beside the target
+            lines[k] = " ".join(tok)
+            wrong_image = tok[5]
+            break
+    (bad / "gcp" / "gcp_list.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    shutil.copytree(first_run, out)                          # reuse PPK and SfM
+    assert main(["georef", str(bad), "--out", str(out), "--control", "all", "--no-leave-one-out"]) == 0
+    summary = json.loads((out / "georef_summary.json").read_text())
+    named = [(b["point"], b["image"]) for b in summary["blunders"]]
+    assert (victim, wrong_image) in named
+    assert len(named) == 1
+
+
+def test_bad_inputs_are_named(survey, first_run, tmp_path, capsys):
+    bad = tmp_path / "crs_survey"
+    bad.mkdir()
+    for item in survey.iterdir():
+        if item.name != "gcp":
+            (bad / item.name).symlink_to(item)
+    (bad / "gcp").mkdir()
+    lines = (survey / "gcp" / "gcp_list.txt").read_text().splitlines()
+    (bad / "gcp" / "gcp_list.txt").write_text("\n".join(["EPSG:1234567"] + lines[1:]) + "\n")
+    out = tmp_path / "out"
+    shutil.copytree(first_run, out)
+    assert main(["georef", str(bad), "--out", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert "gcp_list.txt" in err and "unknown coordinate reference system" in err
+    assert "Traceback" not in err
+
+    # an image without a trigger: named, and the rest of the survey is still processed
+    ev = tmp_path / "events_survey"
+    ev.mkdir()
+    for item in survey.iterdir():
+        if item.name != "events.csv":
+            (ev / item.name).symlink_to(item)
+    ev_lines = (survey / "events.csv").read_text().splitlines()
+    dropped = ev_lines[-1].split(",")[0]
+    (ev / "events.csv").write_text("\n".join(ev_lines[:-1]) + "\n")
+    out2 = tmp_path / "out2"
+    out2.mkdir()
+    shutil.copytree(first_run / "sfm", out2 / "sfm")             # reuse SfM; PPK is recomputed for the new events
+    assert main(["georef", str(ev), "--out", str(out2), "--no-leave-one-out"]) == 0
+    summary = json.loads((out2 / "georef_summary.json").read_text())
+    assert summary["images"]["with_gnss"] == 11 and summary["images"]["registered"] == 12
+    assert any(dropped in w for w in summary["warnings"])
+
+    # images that are not images
+    noimg = tmp_path / "noimg"
+    noimg.mkdir()
+    (noimg / "images").mkdir()
+    assert main(["georef", str(noimg), "--out", str(tmp_path / "out3")]) != 0
+    assert "no JPEG/TIFF images" in capsys.readouterr().err
