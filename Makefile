@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 UI     := frontend/dist/index.html
 
-.PHONY: install run test test-python test-frontend bench clean
+.PHONY: install run test lint test-python test-frontend bench clean
 
 $(STAMP): pyproject.toml scripts/install_system_deps.sh
 	bash scripts/install_system_deps.sh
@@ -23,7 +23,10 @@ install: $(STAMP) $(UI)
 run: install
 	$(PY) -m backend.serve_embedded
 
-test: test-frontend test-python
+test: lint test-frontend test-python
+
+lint: install
+	$(PY) -m ruff check --select F,E9 georef_core backend worker tests bench
 
 test-python: install
 	$(PY) -m pytest -q -n 2 tests
