@@ -25,7 +25,7 @@ inverse of the reduced system after the variance components have been applied.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -514,5 +514,14 @@ class BundleAdjuster:
 
 
 def adjust(problem: BundleProblem, options: BundleOptions | None = None) -> BundleResult:
-    """Run the adjustment in place on ``problem`` and return the statistics."""
-    return BundleAdjuster(problem, options).run()
+    """Run the adjustment in place on ``problem`` and return the statistics.
+
+    Staged: the block is first brought onto its datum (GNSS positions, control points) with the camera
+    intrinsics held, then everything is freed. Straight from SfM the datum misfit is large and the
+    intrinsics are the least determined unknowns (focal length against flying height); solving for all
+    at once lets Levenberg-Marquardt crawl along that valley instead of closing the misfit."""
+    opt = options or BundleOptions()
+    if opt.initial_variances is None and np.any(opt.free_intrinsics):
+        first = replace(opt, free_intrinsics=np.zeros(8, bool), variance_components=False, max_iterations=30)
+        BundleAdjuster(problem, first)._iterate(first.max_iterations)
+    return BundleAdjuster(problem, opt).run()

@@ -365,7 +365,11 @@ def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, contr
         ms = [m for m in control.measurements_of(pname) if m.image in im_idx]
         if len(ms) < 2:
             continue
-        t = triangulate(np.array([m.uv_px for m in ms]), np.array([im_idx[m.image] for m in ms]), R_model, C_model, intr)
+        uv, cams = np.array([m.uv_px for m in ms]), np.array([im_idx[m.image] for m in ms])
+        keep, _ = find_blunders(pname, [m.image for m in ms], uv, cams, R_model, C_model, intr)  # (reported later)
+        if len(keep) < 2:
+            continue
+        t = triangulate(uv[keep], cams[keep], R_model, C_model, intr)
         src.append(t.xyz_enu_m)
         dst.append(control_enu[pname])
     if len(src) < 3:
