@@ -38,6 +38,14 @@ def register(sub) -> None:
     p.add_argument("--max-tie-points", type=int, default=8000, help="tie points in the adjustment (default 8000)")
     p.add_argument("--threads", type=int, default=2, help="threads for SfM (default 2)")
     p.add_argument("--rerun", action="store_true", help="recompute PPK and SfM even when OUT_DIR has them")
+    p.add_argument("--exif-time-offset", type=float, metavar="S",
+                   help="take trigger times from the images' EXIF time + S seconds (camera clock error negated) "
+                        "instead of camera events")
+    shutter = p.add_mutually_exclusive_group()
+    shutter.add_argument("--rolling-shutter", dest="rolling_shutter", action="store_true", default=None,
+                         help="the camera has a rolling shutter (default: from Georef's table of camera models)")
+    shutter.add_argument("--global-shutter", dest="rolling_shutter", action="store_false",
+                         help="the camera has a global or mechanical shutter")
     p.set_defaults(func=cmd_georef)
 
 
@@ -50,7 +58,8 @@ def cmd_georef(args) -> int:
                          lever_arm_cam_m=parse_three_numbers(args.lever_arm, "--lever-arm") if args.lever_arm else None,
                          lever_arm_sigma_m=args.lever_arm_sigma, delay_s=args.delay, estimate_delay=not args.fix_delay,
                          refine_targets=not args.no_target_refinement, leave_one_out=not args.no_leave_one_out,
-                         max_tie_points=args.max_tie_points, num_threads=args.threads, reuse=not args.rerun)
+                         max_tie_points=args.max_tie_points, num_threads=args.threads, reuse=not args.rerun,
+                         exif_time_offset_s=args.exif_time_offset, rolling_shutter=args.rolling_shutter)
 
     def progress(stage, done, total):
         if total:

@@ -64,6 +64,10 @@ class GeorefOptions:
     blunder_threshold_px: float = 5.0
     refine_targets: bool = True               # sub-pixel refinement of clicked checker-target centres
     leave_one_out: bool = True
+    # trigger times from the images' EXIF time instead of camera events: trigger UTC = EXIF time (UTC, or
+    # local with its OffsetTimeOriginal) + this offset (s), i.e. the camera clock's error negated
+    exif_time_offset_s: float | None = None
+    rolling_shutter: bool | None = None       # the camera has a rolling shutter (None: from the EXIF model)
 
 
 def _image_names(image_dir: Path) -> list[str]:
@@ -73,6 +77,22 @@ def _image_names(image_dir: Path) -> list[str]:
     if not names:
         raise InputFileError(image_dir, "no JPEG/TIFF images found")
     return names
+
+
+def _shutter_flag(first_image: Path, option: bool | None, warnings: list) -> dict:
+    from ..photo.camera_shutter import rolling_shutter_of
+    from ..photo.images import read_image_info
+
+    model = read_image_info(first_image, warn=False).model
+    if option is not None:
+        rolling, source = option, "given by the user"
+    else:
+        rolling, source = rolling_shutter_of(model)
+    if rolling:
+        warnings.append(f"{first_image.parent}: the camera ({model or 'unknown model'}: {source}) has a rolling shutter; "
+                        f"its along-track skew (readout time x speed, several cm at survey speeds) is not modelled, "
+                        f"so expect larger residuals; fly slower or use a mechanical/global-shutter camera")
+    return {"camera_model": model, "rolling_shutter": rolling, "source": source, "modelled": False}
 
 
 # ------------------------------------------------------------------------------------------- GNSS at images
@@ -110,16 +130,50 @@ def _survey_events(path: Path) -> dict[str, float]:
     return {r["image"]: float(r[key]) for r in rows}
 
 
-def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_csv: Path) -> ImageGnss:
+def exif_trigger_times(survey_dir: Path, image_names: list[str], offset_s: float) -> tuple[dict[str, float], list[str]]:
+    """image name -> trigger GPS time from its EXIF time plus a clock offset (see GeorefOptions)."""
+    import datetime as dt
+
+    from ..gnss.gnss_time import utc_datetime_to_gps_time_s
+    from ..photo.images import read_image_info
+
+    times, warnings = {}, []
+    for name in image_names:
+        t = read_image_info(survey_dir / "images" / name, warn=False).time_original
+        if t is None:
+            warnings.append(f"{name}: no EXIF DateTimeOriginal; the image is used without GNSS")
+            continue
+        utc = t.astimezone(dt.timezone.utc).replace(tzinfo=None) if t.tzinfo else t
+        times[name] = utc_datetime_to_gps_time_s(utc + dt.timedelta(seconds=float(offset_s)))
+    if not times:
+        raise InputFileError(survey_dir / "images", "no image has an EXIF time: trigger times cannot come from EXIF")
+    return times, warnings
+
+
+def write_trigger_csv(path: Path, times: dict[str, float]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["image", "gps_time_s"])
+        for name, t in sorted(times.items(), key=lambda kv: kv[1]):
+            w.writerow([name, f"{t:.6f}"])
+
+
+def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_csv: Path,
+                           times: dict[str, float] | None = None, times_source: str = "") -> ImageGnss:
+    """Tie images to the PPK states at their triggers: ``times`` (image -> trigger GPS time) when given,
+    else the survey's events.csv, else the rover's event records in the order of the images' EXIF times."""
     ev = _read_ppk_events(ppk_events_csv)
     warnings: list[str] = []
     ev_csv = survey_dir / "events.csv"
-    if ev_csv.is_file():
-        times = _survey_events(ev_csv)
+    if times is not None or ev_csv.is_file():
+        if times is None:
+            times = _survey_events(ev_csv)
+            times_source = ev_csv.name
         names, idx = [], []
         for name in image_names:
             if name not in times:
-                warnings.append(f"{name}: no trigger time in {ev_csv.name}; the image is used without GNSS")
+                warnings.append(f"{name}: no trigger time in {times_source}; the image is used without GNSS")
                 continue
             k = int(np.argmin(np.abs(ev["t"] - times[name])))
             if abs(ev["t"][k] - times[name]) > 1e-3:
@@ -127,14 +181,15 @@ def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_
                 continue
             names.append(name)
             idx.append(k)
-        source = f"{ev_csv.name} (image names) matched to the PPK events"
+        source = f"{times_source} (image names) matched to the PPK events"
     else:
         from ..photo.images import read_image_info
 
         infos = []
         for name in image_names:
             info = read_image_info(survey_dir / "images" / name)
-            infos.append((info.time_utc.timestamp() if getattr(info, "time_utc", None) else None, name))
+            t = info.time_original
+            infos.append(((t.timestamp() if t.tzinfo else t.replace(tzinfo=None).timestamp()) if t else None, name))
         if len(ev["t"]) != len(image_names):
             raise InputFileError(survey_dir / "images", f"{len(image_names)} images but {len(ev['t'])} camera events in "
                                  f"the rover's log and no events.csv to say which is which; give events.csv "
@@ -219,6 +274,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     report = progress or (lambda *a: None)
     meta = read_survey_json(survey_dir)
     image_names = _image_names(survey_dir / "images")
+    shutter = _shutter_flag(survey_dir / "images" / image_names[0], opts.rolling_shutter, warnings)
 
     # ---- control points
     gcp_dir = survey_dir / "gcp"
@@ -244,10 +300,19 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if (survey_dir / "rover").is_dir():
         report("gnss", 0, 1)
         ev_csv = out / "ppk" / "events.csv"
-        if not (opts.reuse and ev_csv.is_file()):
-            run_survey_gnss(survey_dir, out, opts.gnss_options)
+        times, times_source = None, ""
+        gnss_options = dict(opts.gnss_options)
+        if opts.exif_time_offset_s is not None:
+            times, w = exif_trigger_times(survey_dir, image_names, opts.exif_time_offset_s)
+            warnings += w
+            trig = out / "exif_triggers.csv"
+            write_trigger_csv(trig, times)
+            gnss_options["events_csv"] = str(trig)
+            times_source = f"EXIF times {opts.exif_time_offset_s:+.3f} s"
+        if not (opts.reuse and ev_csv.is_file()) or times is not None:
+            run_survey_gnss(survey_dir, out, gnss_options)
         if ev_csv.is_file():
-            gnss = match_images_to_events(survey_dir, image_names, ev_csv)
+            gnss = match_images_to_events(survey_dir, image_names, ev_csv, times, times_source)
             warnings += gnss.warnings
         else:
             warnings.append("the PPK solution has no camera events: images are not tied to GNSS positions")
@@ -311,6 +376,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     t0 = time.perf_counter()
     summary = _write_outputs(out, survey_dir, opts, frame, rec, control, result, gnss, warnings)
     summary["target_refinement"] = target_refinement
+    summary["rolling_shutter"] = shutter
     timings["outputs_s"] = time.perf_counter() - t0
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     (out / "georef_summary.json").write_text(json.dumps(summary, indent=1))

@@ -109,7 +109,7 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json) into
     ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
     'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
-    ``known_start_ecef_m``, ``epsg``, and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
+    ``known_start_ecef_m``, ``epsg``, ``events_csv`` (trigger times that override the survey's), and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
     (ratio-test threshold), ``navsys`` ('G,E,...'). 'auto' picks dual frequency when the rover records a second band,
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
     from ..errors import InputFileError
@@ -160,11 +160,14 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
 
         raise ProcessingError(f"GNSS settings: {exc}") from None
     events_csv = survey_dir / "events.csv" if (survey_dir / "events.csv").is_file() else None
+    rover_events_first = True
+    if opt.get("events_csv"):  # trigger times given explicitly (e.g. from EXIF times): they win
+        events_csv, rover_events_first = Path(opt["events_csv"]), False
     epsg = opt.get("epsg")
     if epsg is None and meta.get("project_crs", "").upper().startswith("EPSG:"):
         epsg = int(meta["project_crs"].split(":")[1])
     summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=events_csv,
-                             epsg=epsg, events_out=out / "events.csv", rover_events_first=True)
+                             epsg=epsg, events_out=out / "events.csv", rover_events_first=rover_events_first)
     # paths relative to the run folder, so a moved or re-used run folder stays valid
     summary["outputs"] = {k: _relative_to(v, out_dir) for k, v in summary["outputs"].items()}
     if "events" in summary:

@@ -172,3 +172,53 @@ def test_images_to_dense_to_volumes_end_to_end(survey, first_run, tmp_path):
         assert abs(err) < 0.03 * true_v, (feat["properties"]["name"], res["net_m3"], true_v)
         assert abs(err) < 3 * sigma, (feat["properties"]["name"], err, sigma)
         assert res["fill_m3"] < 0.02 * true_v                 # a pile on flat ground: (almost) no fill
+
+
+def test_trigger_times_from_exif_with_a_clock_offset(survey, first_run, tmp_path):
+    """No camera events used: trigger = EXIF time (the simulator stamps the exposure, to the ms) + offset.
+    With the offset = -delay the trigger times come back to within the EXIF's millisecond, and the images
+    get the same antenna positions as from the events."""
+    import csv
+
+    _, delay = _truth_lever_delay(survey)
+    out = tmp_path / "exif"
+    out.mkdir()
+    shutil.copytree(first_run / "sfm", out / "sfm")
+    rc = main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out",
+               "--exif-time-offset", f"{-delay:.4f}"])
+    assert rc == 0
+    s = json.loads((out / "georef_summary.json").read_text())
+    assert s["images"]["with_gnss"] == 12 and "EXIF" in s["gnss_source"]
+    truth = {r["image"]: float(r["trigger_gps_time_s"]) for r in csv.DictReader((survey / "events.csv").open())}
+    exif = {r["image"]: float(r["gps_time_s"]) for r in csv.DictReader((out / "exif_triggers.csv").open())}
+    assert set(exif) == set(truth)
+    assert max(abs(exif[k] - truth[k]) for k in truth) < 0.0011
+    assert s["rolling_shutter"]["rolling_shutter"] is None        # SimCam-GS is not in the shutter table
+    d = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in json.loads((out / "residuals.json").read_text())["points"]])
+    assert np.all(np.abs(d[:, :2]) < 0.03) and np.all(np.abs(d[:, 2]) < 0.05), d
+
+
+def test_rolling_shutter_cameras_are_flagged():
+    from georef_core.photo.camera_shutter import rolling_shutter_of
+
+    assert rolling_shutter_of("FC330")[0] is True            # Phantom 4
+    assert rolling_shutter_of("FC6310")[0] is False          # Phantom 4 Pro, mechanical shutter
+    assert rolling_shutter_of("SimCam-GS")[0] is None
+    assert rolling_shutter_of(None)[0] is None
+
+
+def test_without_events_csv_the_rover_event_records_are_matched_in_exif_time_order(survey, first_run, tmp_path):
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for item in survey.iterdir():
+        if item.name != "events.csv":
+            (bare / item.name).symlink_to(item)
+    out = tmp_path / "out"
+    out.mkdir()
+    shutil.copytree(first_run / "sfm", out / "sfm")
+    assert main(["georef", str(bare), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
+    s = json.loads((out / "georef_summary.json").read_text())
+    assert s["images"]["with_gnss"] == 12
+    assert "EXIF times" in s["gnss_source"] and not any("file-name order" in w for w in s["warnings"])
+    d = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in json.loads((out / "residuals.json").read_text())["points"]])
+    assert np.all(np.abs(d[:, :2]) < 0.03) and np.all(np.abs(d[:, 2]) < 0.05), d
