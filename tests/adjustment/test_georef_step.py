@@ -31,6 +31,15 @@ def first_run(survey, tmp_path_factory):
     return out
 
 
+def _linked_copy(survey: Path, dest: Path, without: str) -> Path:
+    """The survey folder with symlinks to everything but ``without`` (to be replaced by the test)."""
+    dest.mkdir()
+    for item in survey.iterdir():
+        if item.name != without:
+            (dest / item.name).symlink_to(item)
+    return dest
+
+
 def _truth_lever_delay(survey: Path):
     t = json.loads((survey / "truth" / "lever_arm_delay.json").read_text())
     return np.array(t["lever_arm_cam_m"]), t["delay_s"]
@@ -78,11 +87,7 @@ def test_switching_control_and_check_reuses_matching(survey, first_run, tmp_path
 
 
 def test_a_wrong_click_is_named(survey, first_run, tmp_path):
-    bad = tmp_path / "bad_survey"
-    bad.mkdir()
-    for item in survey.iterdir():
-        if item.name != "gcp":
-            (bad / item.name).symlink_to(item)
+    bad = _linked_copy(survey, tmp_path / "bad_survey", "gcp")
     (bad / "gcp").mkdir()
     lines = (survey / "gcp" / "gcp_list.txt").read_text().splitlines()
     counts: dict[str, int] = {}
@@ -109,11 +114,7 @@ def test_a_wrong_click_is_named(survey, first_run, tmp_path):
 
 
 def test_bad_inputs_are_named(survey, first_run, tmp_path, capsys):
-    bad = tmp_path / "crs_survey"
-    bad.mkdir()
-    for item in survey.iterdir():
-        if item.name != "gcp":
-            (bad / item.name).symlink_to(item)
+    bad = _linked_copy(survey, tmp_path / "crs_survey", "gcp")
     (bad / "gcp").mkdir()
     lines = (survey / "gcp" / "gcp_list.txt").read_text().splitlines()
     (bad / "gcp" / "gcp_list.txt").write_text("\n".join(["EPSG:1234567"] + lines[1:]) + "\n")
@@ -125,11 +126,7 @@ def test_bad_inputs_are_named(survey, first_run, tmp_path, capsys):
     assert "Traceback" not in err
 
     # an image without a trigger: named, and the rest of the survey is still processed
-    ev = tmp_path / "events_survey"
-    ev.mkdir()
-    for item in survey.iterdir():
-        if item.name != "events.csv":
-            (ev / item.name).symlink_to(item)
+    ev = _linked_copy(survey, tmp_path / "events_survey", "events.csv")
     ev_lines = (survey / "events.csv").read_text().splitlines()
     dropped = ev_lines[-1].split(",")[0]
     (ev / "events.csv").write_text("\n".join(ev_lines[:-1]) + "\n")
@@ -208,11 +205,7 @@ def test_rolling_shutter_cameras_are_flagged():
 
 
 def test_without_events_csv_the_rover_event_records_are_matched_in_exif_time_order(survey, first_run, tmp_path):
-    bare = tmp_path / "bare"
-    bare.mkdir()
-    for item in survey.iterdir():
-        if item.name != "events.csv":
-            (bare / item.name).symlink_to(item)
+    bare = _linked_copy(survey, tmp_path / "bare", "events.csv")
     out = tmp_path / "out"
     out.mkdir()
     shutil.copytree(first_run / "sfm", out / "sfm")
