@@ -72,7 +72,7 @@ def bootstrap_demo(settings, full: bool, seed: int) -> str | None:
             ring = [[c[0], c[1]] for c in f["geometry"]["coordinates"][0]]
             stockpiles.create_stockpile(ctx, site.id, f["properties"]["name"], {"type": "Polygon",
                                                                                "coordinates": [ring]},
-                                        "lowest", f["properties"].get("material", ""), None)
+                                        "plane", f["properties"].get("material", ""), None)
         up = uploads.create_upload(ctx, survey.id, "demo_survey.zip", len(data), hashlib.sha256(data).hexdigest(),
                                    "archive", None)
         ctx.commit()

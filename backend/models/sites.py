@@ -40,7 +40,7 @@ class Stockpile(IdMixin, TimestampMixin, VersionMixin, Base):
     site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(200))
     outline: Mapped[dict] = mapped_column(JSON)
-    base: Mapped[str] = mapped_column(String(64), default="lowest")
+    base: Mapped[str] = mapped_column(String(64), default="plane")
     material: Mapped[str] = mapped_column(String(100), default="")
     density_t_m3: Mapped[float | None] = mapped_column(default=None)
 

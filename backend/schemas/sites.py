@@ -59,7 +59,7 @@ class MemberOut(BaseModel):
 class StockpileIn(BaseModel):
     name: str = Field(min_length=1, max_length=200)
     outline: dict = Field(description="GeoJSON Polygon, coordinates in the site CRS (E, N[, h]) in metres")
-    base: str = Field(default="lowest", max_length=64, description="lowest|highest|mean|plane|tin|elevation:Z")
+    base: str = Field(default="plane", max_length=64, description="lowest|highest|mean|plane|tin|elevation:Z")
     material: str = Field(default="", max_length=100)
     density_t_m3: float | None = Field(default=None, gt=0, lt=30)
 

@@ -66,7 +66,7 @@ def volumes(run_id: str, ctx: CtxDep, request: Request, format: Annotated[str, F
 
 class OutlineIn(BaseModel):
     outline: dict = Field(description="GeoJSON Polygon in the site CRS (metres)")
-    base: str = Field(default="lowest", max_length=64, description="lowest|highest|mean|plane|tin|elevation:Z")
+    base: str = Field(default="plane", max_length=64, description="lowest|highest|mean|plane|tin|elevation:Z")
 
 
 def _file(request: Request, ctx, run_id: str, what: str, filename: str):

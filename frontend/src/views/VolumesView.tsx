@@ -24,10 +24,10 @@ import { autoRange, heightAt, useRunRaster } from "./rasterLayers";
 import type { SurveyContext } from "./SurveyView";
 
 const BASES = [
+  ["plane", "Best-fit plane through the outline (recommended)"],
   ["lowest", "Lowest point of the outline (2nd percentile)"],
   ["highest", "Highest point of the outline"],
   ["mean", "Mean height of the outline"],
-  ["plane", "Best-fit plane through the outline"],
   ["tin", "Triangulated outline (server only)"],
   ["elevation", "A fixed elevation"],
 ] as const;
@@ -46,7 +46,7 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const [draft, setDraft] = useState<Ring>([]);
   const [closed, setClosed] = useState(false);
   const [drawing, setDrawing] = useState(false);
-  const [baseKind, setBaseKind] = useState("lowest");
+  const [baseKind, setBaseKind] = useState("plane");
   const [baseZ, setBaseZ] = useState("");
   const [name, setName] = useState("");
   const [material, setMaterial] = useState("");
