@@ -185,7 +185,7 @@ def write_position_priors(database_path, positions: dict[str, Sequence[float]]) 
 def extract_sift(database_path, image_dir, image_names: Sequence[str] | None = None,
                  camera_model: str = "SIMPLE_RADIAL", single_camera: bool = True,
                  max_image_size: int = 3200, max_num_features: int = 8192, num_threads: int = 2,
-                 use_gpu: bool = False, camera_params: Sequence[float] | None = None) -> None:
+                 use_gpu: bool = False, camera_params: Sequence[float] | None = None, first_octave: int = -1) -> None:
     """Import the images and extract SIFT features into the database. `single_camera`: one shared set of
     intrinsics for all images (one physical camera, fixed zoom); `camera_params` optionally seeds them."""
     if camera_model not in CAMERA_MODELS:
@@ -202,12 +202,14 @@ def extract_sift(database_path, image_dir, image_names: Sequence[str] | None = N
         ext.num_threads = int(num_threads)
         _set_first(ext, ["use_gpu"], bool(use_gpu))
         ext.sift.max_num_features = int(max_num_features)
+        _set_first(ext.sift, ["first_octave"], int(first_octave))
         _call(pycolmap.extract_features, str(database_path), str(image_dir), image_names=names, camera_mode=mode,
               reader_options=reader, extraction_options=ext, device=_device(use_gpu))
     else:  # 3.10/3.11
         sift = pycolmap.SiftExtractionOptions()
         sift.max_image_size = int(max_image_size)
         sift.max_num_features = int(max_num_features)
+        _set_first(sift, ["first_octave"], int(first_octave))
         sift.num_threads = int(num_threads)
         _call(pycolmap.extract_features, str(database_path), str(image_dir), image_list=names, camera_mode=mode,
               reader_options=reader, sift_options=sift, device=_device(use_gpu))
@@ -275,7 +277,9 @@ def match_spatial(database_path, positions: dict[str, Sequence[float]], max_num_
 def incremental_mapping(database_path, image_dir, output_dir, num_threads: int = 2,
                         refine_focal_length: bool = True, refine_principal_point: bool = False,
                         refine_extra_params: bool = True, multiple_models: bool = True, min_model_size: int = 3,
-                        random_seed: int = 0, next_image_callback: Callable[[], None] | None = None) -> MappingOutput:
+                        random_seed: int = 0, next_image_callback: Callable[[], None] | None = None,
+                        global_ba_growth: float | None = None, global_ba_max_iterations: int | None = None,
+                        local_ba_max_iterations: int | None = None) -> MappingOutput:
     """Run COLMAP's incremental mapper. Models are written to output_dir/0, 1, ...; returns them largest
     first with the largest converted to plain data."""
     output_dir = Path(output_dir)
@@ -290,6 +294,13 @@ def incremental_mapping(database_path, image_dir, output_dir, num_threads: int =
     _set_first(opts, ["min_model_size"], int(min_model_size))
     if random_seed is not None:
         _set_first(opts, ["random_seed"], int(random_seed))
+    if global_ba_growth is not None:
+        _set_first(opts, ["ba_global_frames_ratio", "ba_global_images_ratio"], float(global_ba_growth))
+        _set_first(opts, ["ba_global_points_ratio"], float(global_ba_growth))
+    if global_ba_max_iterations is not None:
+        _set_first(opts, ["ba_global_max_num_iterations"], int(global_ba_max_iterations))
+    if local_ba_max_iterations is not None:
+        _set_first(opts, ["ba_local_max_num_iterations"], int(local_ba_max_iterations))
     kwargs = {"options": opts}
     if next_image_callback is not None:
         kwargs["next_image_callback"] = next_image_callback

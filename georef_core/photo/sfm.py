@@ -32,13 +32,31 @@ class SfmOptions:
     spatial_max_distance_m: float = 150.0
     sequential_overlap: int = 10
     max_image_size: int = 3200
-    max_num_features: int = 8192
+    max_num_features: int = 4096
+    # SIFT's first octave: -1 (COLMAP's default) doubles the image first and finds the smallest features;
+    # 0 starts at full resolution: 5x faster extraction on 1600-px images, same registration (measured).
+    # None: 0 when the images' long side is at least 1200 px, else -1 (small images need the fine scales)
+    sift_first_octave: int | None = None
+    # incremental mapper: a global bundle adjustment each time the model grew by this factor, and the
+    # iteration caps of global / local adjustments (COLMAP: 1.1, unlimited, unlimited); the GNSS-aided
+    # adjustment after SfM re-refines everything, so SfM's own refinement can be lighter (measured: same
+    # registration and reprojection error on 102 images, mapping 194 s -> 100 s)
+    mapper_global_ba_growth: float = 2.0
+    mapper_global_ba_max_iterations: int = 20
+    mapper_local_ba_max_iterations: int = 10
     num_threads: int = 2  # 1: single-threaded (reproducible timings); -1: all cores
     use_gpu: bool = False
     refine_principal_point: bool = False
     random_seed: int = 0
     verbose: bool = False  # COLMAP's own log (glog) on stderr
     positions: dict[str, tuple[float, float, float]] | None = None  # name -> local metric xyz (else EXIF GPS)
+
+
+def _first_octave(opts: SfmOptions, infos) -> int:
+    if opts.sift_first_octave is not None:
+        return int(opts.sift_first_octave)
+    long_side = min((max(i.width, i.height) for i in infos), default=0)
+    return 0 if long_side >= 1200 else -1
 
 
 @dataclass
@@ -113,7 +131,7 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
     colmap_api.extract_sift(db_path, image_dir, image_names=names, camera_model=opts.camera_model,
                             single_camera=opts.single_camera, max_image_size=opts.max_image_size,
                             max_num_features=opts.max_num_features, num_threads=opts.num_threads,
-                            use_gpu=opts.use_gpu)
+                            use_gpu=opts.use_gpu, first_octave=_first_octave(opts, infos))
     timings["extraction"] = time.perf_counter() - t0
     report("extraction", len(infos), len(infos))
 
@@ -141,7 +159,10 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
     t0 = time.perf_counter()
     out = colmap_api.incremental_mapping(db_path, image_dir, raw, num_threads=opts.num_threads,
                                          refine_principal_point=opts.refine_principal_point,
-                                         random_seed=opts.random_seed, next_image_callback=on_next_image)
+                                         random_seed=opts.random_seed, next_image_callback=on_next_image,
+                                         global_ba_growth=opts.mapper_global_ba_growth,
+                                         global_ba_max_iterations=opts.mapper_global_ba_max_iterations,
+                                         local_ba_max_iterations=opts.mapper_local_ba_max_iterations)
     timings["mapping"] = time.perf_counter() - t0
     rec = out.best
     model_dir = None

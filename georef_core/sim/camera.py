@@ -141,13 +141,23 @@ class CameraModel:
         return x, y
 
     # ---- projection --------------------------------------------------------------------------------
+    def max_field_radius(self) -> float:
+        """Largest undistorted normalised radius seen by the image (at its corners and edge midpoints)."""
+        u = np.array([0, self.width - 1, 0, self.width - 1, (self.width - 1) / 2, (self.width - 1) / 2, 0, self.width - 1])
+        v = np.array([0, 0, self.height - 1, self.height - 1, 0, self.height - 1, (self.height - 1) / 2, (self.height - 1) / 2])
+        x, y = self.undistort_normalized((u - self.cx) / self.fx, (v - self.cy) / self.fy)
+        return float(np.max(np.hypot(x, y)))
+
     def project(self, points_cam) -> np.ndarray:
-        """Camera-frame points (..., 3) to distorted pixel coordinates (..., 2); NaN behind the camera."""
+        """Camera-frame points (..., 3) to distorted pixel coordinates (..., 2); NaN behind the camera and
+        outside the field of view (the distortion polynomial folds far-off rays back into the image,
+        which the lens does not)."""
         p = np.asarray(points_cam, dtype=float)
         z = p[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            x = np.where(z > 0, p[..., 0] / z, np.nan)
-            y = np.where(z > 0, p[..., 1] / z, np.nan)
+            inside = (z > 0) & (np.hypot(p[..., 0], p[..., 1]) <= 1.02 * self.max_field_radius() * z)
+            x = np.where(inside, p[..., 0] / z, np.nan)
+            y = np.where(inside, p[..., 1] / z, np.nan)
         xd, yd = self.distort_normalized(x, y)
         return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=-1)
 
