@@ -140,6 +140,7 @@ def main(argv=None) -> int:
         print(f"SfM: {sfm.n_registered}/{sfm.n_images} images, {sfm.mean_reprojection_error_px:.3f} px, {t_sfm:.1f} s")
         oi, info = oriented_from_sfm(sfm, args.images)
         oi.write(args.work / "oriented_images.json")
+        (args.work / "caliterra_alignment.json").write_text(json.dumps(info, indent=1))
         print("alignment:", json.dumps(info))
     s = run_dense(args.work, DenseOptions(workers=args.workers))
     t = s["timings_s"]

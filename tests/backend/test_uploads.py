@@ -144,9 +144,12 @@ def test_archives(ctx):
     assert sum(p.startswith("images/") for p in placed) == 12
     ignored = {i["name"] for i in r.json()["result"]["ignored"]}
     assert any(n.startswith("flight7/truth/") for n in ignored)       # truth/ is not survey input
+    # a second rover log in the same survey (tests may run on other workers, so do not rely on their files)
+    r = upload_bytes(api, sid, "second_flight.obs", (sim / "rover" / "rover.obs").read_bytes(), kind="rover")
+    assert r.status_code == 200, r.text
     check = api.get(f"/api/v1/surveys/{sid}/check").json()
     codes = {p["code"] for p in check["problems"]}
-    assert "several-rover-files" in codes          # rover/flight.obs from an earlier test + rover/rover.obs
+    assert "several-rover-files" in codes          # rover/second_flight.obs + rover/rover.obs
     assert not {"missing-navigation", "no-time-overlap", "missing-base"} & codes
 
 

@@ -185,7 +185,7 @@ def test_survey_through_the_api(env, small_survey):
             err = got["volume_m3"] - f["properties"]["volume_m3"]
             # the small scene's tolerance (tests/adjustment/test_georef_step.py): 3 % and inside 3 sigma
             assert abs(err) < 0.03 * f["properties"]["volume_m3"], (got, f["properties"])
-            assert abs(err) < 3 * got["details"]["sigma_m3"], (got, f["properties"])
+            assert abs(err) < 3 * got["sigma_m3"], (got, f["properties"])
         # the same outline measured ad hoc gives the same volume as the volumes step
         f0 = truth["features"][0]
         ring = [[c[0], c[1]] for c in f0["geometry"]["coordinates"][0]]
