@@ -44,6 +44,8 @@ export interface Site {
   vertical_datum: string | null;
   geoid: string | null;
   description: string;
+  tolerance_horizontal_m?: number | null;
+  tolerance_vertical_m?: number | null;
   created_at: string;
   updated_at: string;
   version: number;

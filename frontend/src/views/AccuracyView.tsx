@@ -21,7 +21,12 @@ export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const points = useLoad((signal) => api.get<ApiPoint[]>(`/surveys/${ctx.survey.id}/points`, { signal }).catch(() => [] as ApiPoint[]), [ctx.survey.id]);
   const lever = useLoad((signal) => api.maybe<LeverArm>(`/runs/${run.id}/results/lever-arm`, { signal }), [run.id]);
   const traj = useLoad((signal) => api.maybe<TrajectoryResponse>(`/runs/${run.id}/results/trajectory`, { query: { format: "json", every: 2 }, signal }), [run.id]);
-  const [tol, setTol] = useStored<Tolerance>(`georef.tolerance.${ctx.site.id}`, DEFAULT_TOLERANCE);
+  // the site's tolerance (set on the site, shared by everyone); a change here is remembered in this browser
+  const siteTolerance: Tolerance = {
+    horizontal_m: ctx.site.tolerance_horizontal_m ?? DEFAULT_TOLERANCE.horizontal_m,
+    vertical_m: ctx.site.tolerance_vertical_m ?? DEFAULT_TOLERANCE.vertical_m,
+  };
+  const [tol, setTol] = useStored<Tolerance>(`georef.tolerance.${ctx.site.id}`, siteTolerance);
   const [unit, setUnit] = useStored<Unit>("georef.unit", "cm");
 
   const checks = checkRows(res.data ?? null);
