@@ -4,8 +4,9 @@ dense DSM -> stockpile volumes, and every figure compared with the simulator's t
 The operational sequence a contractor follows, on two flights of the same drone (same lever arm and
 trigger delay, different seeds = different site, noise and flight):
 
-1. calibration flight (seed A): all targets are control; the joint adjustment (mode c) estimates the
-   lever arm and the delay  ->  errors against the true lever arm / delay;
+1. calibration flight (seed A; by default with every other pair of lines at a second height, as
+   docs/georeferencing.md recommends): all targets are control; the joint adjustment (mode c) estimates
+   the lever arm and the delay  ->  errors against the true lever arm / delay;
 2. production flight (seed B): zero control points, the calibrated lever arm as a prior with its
    sigma, every target a check point  ->  check-point residual table (3D RMSE);
 3. dense DSM of flight B  ->  vertical RMSE against the truth DSM;
@@ -29,13 +30,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def simulate(folder: Path, seed: int, images: int, size: tuple[int, int], receiver: str) -> None:
+def simulate(folder: Path, seed: int, images: int, size: tuple[int, int], receiver: str,
+             second_height: float | None = None) -> None:
     from georef_core.cli.main import main
 
     if (folder / "truth" / "lever_arm_delay.json").is_file():
         return
+    extra = ["--second-height", str(second_height)] if second_height else []
     rc = main(["simulate", str(folder), "--seed", str(seed), "--images", str(images), "--image-size",
-               str(size[0]), str(size[1]), "--receiver", receiver, "--quiet"])
+               str(size[0]), str(size[1]), "--receiver", receiver, "--quiet"] + extra)
     if rc != 0:
         raise SystemExit(f"simulation of seed {seed} failed")
 
@@ -66,6 +69,8 @@ def main() -> int:
     ap.add_argument("--max-tie-points", type=int, default=8000)
     ap.add_argument("--work", default="work_out/bench_sim_e2e")
     ap.add_argument("--skip-dense", action="store_true")
+    ap.add_argument("--cal-second-height", type=float, default=90.0,
+                    help="second line height of the calibration flight (m; 0: one height like production)")
     args = ap.parse_args()
 
     from georef_core.steps.dense import run_dense
@@ -77,16 +82,17 @@ def main() -> int:
     for pair in args.pairs:
         seed_a, seed_b = (int(s) for s in pair.split(":"))
         tag = f"{args.receiver}_{args.images}_{args.image_size[0]}"
-        sim_a, sim_b = work / f"sim_{seed_a}_{tag}", work / f"sim_{seed_b}_{tag}"
+        cal_tag = f"{tag}_h{args.cal_second_height:g}" if args.cal_second_height else tag
+        sim_a, sim_b = work / f"sim_{seed_a}_{cal_tag}", work / f"sim_{seed_b}_{tag}"
         t0 = time.perf_counter()
-        simulate(sim_a, seed_a, args.images, tuple(args.image_size), args.receiver)
+        simulate(sim_a, seed_a, args.images, tuple(args.image_size), args.receiver, args.cal_second_height or None)
         simulate(sim_b, seed_b, args.images, tuple(args.image_size), args.receiver)
         t_sim = time.perf_counter() - t0
         truth = json.loads((sim_a / "truth" / "lever_arm_delay.json").read_text())
         true_lever, true_delay = np.array(truth["lever_arm_cam_m"]), truth["delay_s"]
 
         # 1. calibration flight: all targets control, lever arm and delay estimated jointly
-        out_a = work / f"out_{seed_a}_{tag}_cal"
+        out_a = work / f"out_{seed_a}_{cal_tag}_cal"
         t0 = time.perf_counter()
         sa = run_georef(sim_a, out_a, GeorefOptions(mode="joint", control="all", leave_one_out=False,
                                                     max_tie_points=args.max_tie_points))
@@ -105,6 +111,7 @@ def main() -> int:
         chk = sb["check_points"]["statistics"]
 
         row = {"pair": pair, "receiver": args.receiver, "images": sb["images"]["registered"],
+               "calibration_second_height_m": args.cal_second_height or None,
                "lever_error_mm": ((lever - true_lever) * 1000).round(1).tolist(),
                "lever_sigma_mm": (lever_sig * 1000).round(1).tolist(),
                "delay_error_ms": round((lad["delay_s"] - true_delay) * 1000, 2),

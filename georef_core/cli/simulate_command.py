@@ -22,6 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed and options, same files (default 0)")
     p.add_argument("--small", action="store_true", help="small scene: 12 images of 640x480 over a 36 x 16 m site")
     p.add_argument("--height", type=float, help="flight height above take-off (m; default 60, small 40)")
+    p.add_argument("--second-height", type=float, metavar="M",
+                   help="a calibration flight: every other pair of lines at this second height (m above take-off; "
+                        "higher than --height keeps the overlaps)")
     p.add_argument("--speed", type=float, help="ground speed on the lines (m/s; default 5, small 4)")
     p.add_argument("--size", type=float, nargs=2, metavar=("EAST_M", "NORTH_M"), help="work area size (m)")
     p.add_argument("--crs", type=int, metavar="EPSG", help="projected CRS of the site (default: its UTM zone)")
@@ -131,6 +134,8 @@ def options_from_args(args):
     fl = {}
     if args.height is not None:
         fl["height_m"] = args.height
+    if args.second_height is not None:
+        fl["second_height_m"] = args.second_height
     if args.speed is not None:
         fl["speed_m_s"] = args.speed
     if args.lever_arm is not None:

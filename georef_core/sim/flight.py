@@ -58,6 +58,9 @@ R_CAM_TO_BODY = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 @dataclass
 class FlightOptions:
     height_m: float = 60.0  # flight height above the take-off ground
+    # a calibration flight: every other pair of lines flown at this second height (None: one height).
+    # Two heights separate the lever arm from the focal length and principal point (docs/georeferencing.md)
+    second_height_m: float | None = None
     speed_m_s: float = 5.0  # ground speed on the lines
     forward_overlap: float = 0.75
     side_overlap: float = 0.65
@@ -160,6 +163,7 @@ def plan_flight(site, camera: CameraModel, o: FlightOptions) -> FlightPlan:
         origin = off * p
         lines.append({
             "index": k, "offset_m": float(off), "direction_xy": dd.tolist(), "origin_xy": origin.tolist(),
+            "height_m": float(o.second_height_m if (o.second_height_m is not None and (k // 2) % 2 == 1) else o.height_m),
             "triggers_s": (np.sort(trig * (1 if fwd else -1))).tolist(),
             "start_xy": (origin + dd * (s_first - runin)).tolist(),
             "end_xy": (origin + dd * (s_last + runin)).tolist(),
@@ -400,7 +404,7 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
         n = max(1, int(round(seconds / dt)))
         segs.append((np.repeat(p[None, :], n, axis=0), yaw))
 
-    first = enu(plan.lines[0]["start_xy"], plan.flight_h)
+    first = enu(plan.lines[0]["start_xy"], plan.flight_h + plan.lines[0].get("height_m", o.height_m) - o.height_m)
     yaw0 = heading(home_a, first, math.atan2(plan.lines[0]["direction_xy"][0], plan.lines[0]["direction_xy"][1]))
     hold(home_g, o.static_before_s, yaw0)
     move(home_g, home_a, o.climb_speed_m_s, o.vertical_accel_m_s2, yaw0)
@@ -408,9 +412,12 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
     move(home_a, first, o.transit_speed_m_s, o.horizontal_accel_m_s2, yaw0)
     line_enu = []
     prev = first
+    def line_h(ln):  # antenna height of a line (lines of a two-height calibration flight differ)
+        return plan.flight_h + ln.get("height_m", o.height_m) - o.height_m
+
     for k, ln in enumerate(plan.lines):
-        a = enu(ln["start_xy"], plan.flight_h)
-        b = enu(ln["end_xy"], plan.flight_h)
+        a = enu(ln["start_xy"], line_h(ln))
+        b = enu(ln["end_xy"], line_h(ln))
         if k > 0:
             move(prev, a, min(o.transit_speed_m_s, o.speed_m_s), o.horizontal_accel_m_s2, heading(prev, a, 0.0))
         hold(a, 0.5, heading(a, b, 0.0))
@@ -489,7 +496,7 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
     k_img = 0
     for k, (ln, (a, b)) in enumerate(zip(plan.lines, line_enu)):
         dirv = (b - a) / np.linalg.norm(b - a)
-        o_line = enu(ln["origin_xy"], plan.flight_h)
+        o_line = enu(ln["origin_xy"], line_h(ln))
         s_all = (ptt - o_line) @ dirv
         # the part of the flight on this line: between its start and end stops
         sel = (tt >= _closest_time(tt, ptt, a)) & (tt <= _closest_time(tt, ptt, b))

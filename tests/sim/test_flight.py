@@ -128,3 +128,18 @@ def test_frames_consistent(flown):
     gamma, k = f.grid_factors(f.origin_e, f.origin_n)
     # grid north seen from ENU at the origin is true north turned by the convergence
     assert abs(np.arctan2(R[1, 0], R[1, 1]) - float(gamma)) < 1e-6
+
+
+def test_two_height_calibration_flight():
+    """--second-height: every other pair of lines at the second height, triggered along the line as usual."""
+    site = build_site(SiteOptions(size_m=(100.0, 60.0), stockpiles=("cone",), stockpile_scale=0.5), seed=12)
+    cam = CameraModel.from_options(CameraOptions())
+    fo = FlightOptions(height_m=50.0, second_height_m=80.0, speed_m_s=6.0, static_before_s=10.0, static_after_s=5.0)
+    traj, events, plan = simulate_flight(site, cam, fo, seed=12)
+    assert len(plan.lines) >= 4
+    assert [ln["height_m"] for ln in plan.lines[:4]] == [50.0, 50.0, 80.0, 80.0]
+    h = traj.frame.enu_to_grid(traj.position_enu(np.array([e.trigger_gps_time_s for e in events])))[:, 2]
+    for e, hk in zip(events, h):
+        want = plan.flight_h + plan.lines[e.line]["height_m"] - fo.height_m
+        assert abs(hk - want) < 1.0, (e.name, hk, want)
+    assert len(events) == sum(len(ln["triggers_s"]) for ln in plan.lines)
