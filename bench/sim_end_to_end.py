@@ -8,7 +8,8 @@ trigger delay, different seeds = different site, noise and flight):
    docs/georeferencing.md recommends): all targets are control; the joint adjustment (mode c) estimates
    the lever arm and the delay  ->  errors against the true lever arm / delay;
 2. production flight (seed B): zero control points, the calibrated lever arm as a prior with its
-   sigma, every target a check point  ->  check-point residual table (3D RMSE);
+   sigma and the calibrated camera held fixed (`georef georef --calibration CAL_OUT_DIR`), every target a
+   check point  ->  check-point residual table (3D RMSE);
 3. dense DSM of flight B  ->  vertical RMSE against the truth DSM;
 4. volumes of the simulated stockpiles on that DSM (base: best-fit plane of the outline)  ->  error
    against the analytic volume, and whether the stated uncertainty covers it.
@@ -69,6 +70,8 @@ def main() -> int:
     ap.add_argument("--max-tie-points", type=int, default=8000)
     ap.add_argument("--work", default="work_out/bench_sim_e2e")
     ap.add_argument("--skip-dense", action="store_true")
+    ap.add_argument("--self-calibrate", action="store_true",
+                    help="production flight: self-calibrate the camera instead of holding the calibration flight's")
     ap.add_argument("--cal-second-height", type=float, default=90.0,
                     help="second line height of the calibration flight (m; 0: one height like production)")
     args = ap.parse_args()
@@ -106,7 +109,8 @@ def main() -> int:
         t0 = time.perf_counter()
         sb = run_georef(sim_b, out_b, GeorefOptions(
             mode="joint", control="none", lever_arm_cam_m=tuple(lever), lever_arm_sigma_m=float(max(lever_sig.max(), 0.002)),
-            delay_s=float(lad["delay_s"]), leave_one_out=False, max_tie_points=args.max_tie_points))
+            delay_s=float(lad["delay_s"]), leave_one_out=False, max_tie_points=args.max_tie_points,
+            fixed_intrinsics=None if args.self_calibrate else tuple(sa["intrinsics"]["values"])))
         t_direct = time.perf_counter() - t0
         chk = sb["check_points"]["statistics"]
 

@@ -30,7 +30,7 @@ def register(sub) -> None:
                                        "--lever-arm=X,Y,Z when X is negative. Fixed unless --lever-arm-sigma is given")
     p.add_argument("--lever-arm-sigma", type=float, metavar="M",
                    help="uncertainty of --lever-arm: estimate the lever arm with it as a weighted prior")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="trigger-to-exposure delay (s), a-priori")
+    p.add_argument("--delay", type=float, metavar="S", help="trigger-to-exposure delay (s), a-priori (default 0)")
     p.add_argument("--fix-delay", action="store_true", help="hold the delay at --delay instead of estimating it")
     p.add_argument("--no-target-refinement", action="store_true",
                    help="use the clicked target positions as they are (default: sub-pixel refinement of checker targets)")
@@ -38,6 +38,9 @@ def register(sub) -> None:
     p.add_argument("--max-tie-points", type=int, default=8000, help="tie points in the adjustment (default 8000)")
     p.add_argument("--threads", type=int, default=2, help="threads for SfM (default 2)")
     p.add_argument("--rerun", action="store_true", help="recompute PPK and SfM even when OUT_DIR has them")
+    p.add_argument("--calibration", metavar="CAL_OUT_DIR",
+                   help="a calibration flight's output folder: its lever arm (as a prior with its sigma), delay (a "
+                        "priori) and camera intrinsics (held fixed) are used; --lever-arm/--delay override")
     p.add_argument("--exif-time-offset", type=float, metavar="S",
                    help="take trigger times from the images' EXIF time + S seconds (camera clock error negated) "
                         "instead of camera events")
@@ -53,10 +56,21 @@ def cmd_georef(args) -> int:
     from ..steps.georef import GeorefOptions, run_georef
 
     mode = {"a": "gcp", "b": "similarity", "c": "joint"}.get(args.mode, args.mode)
+    lever = parse_three_numbers(args.lever_arm, "--lever-arm") if args.lever_arm else None
+    lever_sigma, delay, intrinsics = args.lever_arm_sigma, args.delay, None
+    if args.calibration:
+        from ..steps.georef import load_calibration
+
+        cal = load_calibration(args.calibration)
+        if lever is None:
+            lever, lever_sigma = cal["lever_arm_cam_m"], lever_sigma or cal["lever_arm_sigma_m"]
+        if args.delay is None:
+            delay = cal["delay_s"]
+        intrinsics = cal["intrinsics"]
     opts = GeorefOptions(mode=mode, camera_model=args.camera_model, project_epsg=args.crs, points_crs=args.points_crs,
-                         control=args.control, check=args.check,
-                         lever_arm_cam_m=parse_three_numbers(args.lever_arm, "--lever-arm") if args.lever_arm else None,
-                         lever_arm_sigma_m=args.lever_arm_sigma, delay_s=args.delay, estimate_delay=not args.fix_delay,
+                         control=args.control, check=args.check, fixed_intrinsics=intrinsics,
+                         lever_arm_cam_m=lever, lever_arm_sigma_m=lever_sigma, delay_s=delay or 0.0,
+                         estimate_delay=not args.fix_delay,
                          refine_targets=not args.no_target_refinement, leave_one_out=not args.no_leave_one_out,
                          max_tie_points=args.max_tie_points, num_threads=args.threads, reuse=not args.rerun,
                          exif_time_offset_s=args.exif_time_offset, rolling_shutter=args.rolling_shutter)

@@ -68,6 +68,45 @@ class GeorefOptions:
     # local with its OffsetTimeOriginal) + this offset (s), i.e. the camera clock's error negated
     exif_time_offset_s: float | None = None
     rolling_shutter: bool | None = None       # the camera has a rolling shutter (None: from the EXIF model)
+    # a calibrated camera (e.g. from a calibration flight, see load_calibration): the 8 OpenCV intrinsics
+    # (f, cx, cy, k1, k2, k3, p1, p2, pixels) held fixed instead of self-calibrated
+    fixed_intrinsics: tuple[float, ...] | None = None
+
+
+def georef_options_from_dict(d: dict) -> GeorefOptions:
+    """GeorefOptions from a settings dict (the platform's run settings); unknown names are an error."""
+    from dataclasses import fields
+
+    names = {f.name for f in fields(GeorefOptions)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ProcessingError(f"unknown georeferencing settings: {', '.join(unknown)} (known: {', '.join(sorted(names))})")
+    d = dict(d)
+    for key in ("lever_arm_cam_m", "fixed_intrinsics", "gcp_sigma_m"):
+        if d.get(key) is not None:
+            d[key] = tuple(float(v) for v in d[key])
+    opts = GeorefOptions(**d)
+    if opts.mode not in MODES + ("a", "b", "c"):
+        raise ProcessingError(f"georeferencing mode {opts.mode!r}: one of {', '.join(MODES)}")
+    opts.mode = {"a": "gcp", "b": "similarity", "c": "joint"}.get(opts.mode, opts.mode)
+    return opts
+
+
+def load_calibration(path) -> dict:
+    """Lever arm (with its sigma), delay and camera intrinsics of an earlier run (its OUT_DIR or its
+    georef_summary.json): what a calibration flight hands to the production flights."""
+    p = Path(path)
+    summary_path = p / "georef_summary.json" if p.is_dir() else p
+    try:
+        s = json.loads(summary_path.read_text())
+        lad = s["lever_arm_delay"]
+        intr = [float(v) for v in s["intrinsics"]["values"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputFileError(summary_path, f"not a georeferencing summary with a lever arm and intrinsics ({exc})") from None
+    sig = lad.get("lever_arm_sigma_m")
+    return {"lever_arm_cam_m": tuple(float(v) for v in lad["lever_arm_cam_m"]),
+            "lever_arm_sigma_m": float(max(max(sig), 0.002)) if sig else None,
+            "delay_s": float(lad["delay_s"]), "intrinsics": tuple(intr), "source": str(summary_path)}
 
 
 def _image_names(image_dir: Path) -> list[str]:
@@ -264,7 +303,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     from ..photo.sfm import SfmOptions, run_sfm
     from .gnss_solve import read_survey_json, run_survey_gnss
 
-    opts = options or GeorefOptions()
+    opts = georef_options_from_dict(options) if isinstance(options, dict) else (options or GeorefOptions())
     if opts.mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}")
     survey_dir, out = Path(survey_dir), Path(out_dir)
@@ -468,6 +507,10 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     if opts.camera_model == "fisheye":
         raise ProcessingError("the adjustment supports the radial and brown camera models; fisheye is SfM-only for now")
     intr0 = cm.from_colmap(cam.model, cam.params)
+    if opts.fixed_intrinsics is not None:
+        if len(opts.fixed_intrinsics) != 8:
+            raise ProcessingError("fixed intrinsics need 8 values: f, cx, cy, k1, k2, k3, p1, p2 (OpenCV pixels)")
+        intr0 = np.asarray(opts.fixed_intrinsics, float)
     images = sorted(rec.images.values(), key=lambda im: im.name)
     names = [im.name for im in images]
     im_idx = {n: i for i, n in enumerate(names)}
@@ -544,7 +587,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
         return prob, gn, gcp_names
 
-    free = cm.free_mask(opts.camera_model)
+    free = cm.free_mask(opts.camera_model) if opts.fixed_intrinsics is None else np.zeros(8, bool)
     est_lever = opts.estimate_lever_arm if opts.estimate_lever_arm is not None else \
         (opts.lever_arm_cam_m is None or opts.lever_arm_sigma_m is not None)
     control_names = {n for n, p in control.points.items() if p.role == "control"}

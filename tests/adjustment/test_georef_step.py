@@ -215,3 +215,36 @@ def test_without_events_csv_the_rover_event_records_are_matched_in_exif_time_ord
     assert "EXIF times" in s["gnss_source"] and not any("file-name order" in w for w in s["warnings"])
     d = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in json.loads((out / "residuals.json").read_text())["points"]])
     assert np.all(np.abs(d[:, :2]) < 0.03) and np.all(np.abs(d[:, 2]) < 0.05), d
+
+
+def test_production_flight_with_a_calibration(survey, first_run, tmp_path, capsys):
+    """--calibration CAL_OUT_DIR: the calibration run's camera is held, its lever arm is a prior, no control."""
+    out = tmp_path / "prod"
+    out.mkdir()
+    for sub in ("ppk", "sfm"):
+        shutil.copytree(first_run / sub, out / sub)
+    assert main(["georef", str(survey), "--out", str(out), "--control", "none", "--calibration", str(first_run),
+                 "--no-leave-one-out"]) == 0
+    cal = json.loads((first_run / "georef_summary.json").read_text())
+    s = json.loads((out / "georef_summary.json").read_text())
+    np.testing.assert_allclose(s["intrinsics"]["values"], cal["intrinsics"]["values"], atol=1e-9)
+    assert s["intrinsics"]["sigma"] == {}                       # held, not estimated
+    assert s["options"]["lever_arm_cam_m"] == pytest.approx(cal["lever_arm_delay"]["lever_arm_cam_m"])
+    res = json.loads((out / "residuals.json").read_text())
+    assert {r["name"] for r in res["points"]} == {"T01", "T02", "T03", "T04", "T05"}
+    assert res["statistics"]["3d"]["rmse_m"] < 0.05
+    # a folder that is not a georeferencing run is named
+    assert main(["georef", str(survey), "--out", str(out), "--calibration", str(tmp_path)]) != 0
+    assert "georef_summary.json" in capsys.readouterr().err
+
+
+def test_options_from_the_platform_settings():
+    from georef_core.errors import ProcessingError
+    from georef_core.steps.georef import georef_options_from_dict
+
+    o = georef_options_from_dict({"mode": "a", "control": "T01,T02,T03", "lever_arm_cam_m": [0.01, -0.1, 0.2]})
+    assert o.mode == "gcp" and o.lever_arm_cam_m == (0.01, -0.1, 0.2)
+    with pytest.raises(ProcessingError, match="unknown georeferencing settings: levr"):
+        georef_options_from_dict({"levr": 1})
+    with pytest.raises(ProcessingError, match="mode"):
+        georef_options_from_dict({"mode": "fast"})
