@@ -4,7 +4,7 @@ dense DSM -> stockpile volumes, and every figure compared with the simulator's t
 The operational sequence a contractor follows, on two flights of the same drone (same lever arm and
 trigger delay, different seeds = different site, noise and flight):
 
-1. calibration flight (seed A; by default with every other pair of lines at a second height, as
+1. calibration flight (seed A; by default every other pair of lines at a second height and speed, as
    docs/georeferencing.md recommends): all targets are control; the joint adjustment (mode c) estimates
    the lever arm and the delay  ->  errors against the true lever arm / delay;
 2. production flight (seed B): zero control points, the calibrated lever arm as a prior with its
@@ -32,12 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def simulate(folder: Path, seed: int, images: int, size: tuple[int, int], receiver: str,
-             second_height: float | None = None) -> None:
+             second_height: float | None = None, second_speed: float | None = None) -> None:
     from georef_core.cli.main import main
 
     if (folder / "truth" / "lever_arm_delay.json").is_file():
         return
     extra = ["--second-height", str(second_height)] if second_height else []
+    extra += ["--second-speed", str(second_speed)] if second_speed else []
     rc = main(["simulate", str(folder), "--seed", str(seed), "--images", str(images), "--image-size",
                str(size[0]), str(size[1]), "--receiver", receiver, "--quiet"] + extra)
     if rc != 0:
@@ -74,6 +75,8 @@ def main() -> int:
                     help="production flight: self-calibrate the camera instead of holding the calibration flight's")
     ap.add_argument("--cal-second-height", type=float, default=90.0,
                     help="second line height of the calibration flight (m; 0: one height like production)")
+    ap.add_argument("--cal-second-speed", type=float, default=8.0,
+                    help="ground speed of the calibration flight's second-height lines (m/s; 0: one speed)")
     args = ap.parse_args()
 
     from georef_core.steps.dense import run_dense
@@ -85,10 +88,12 @@ def main() -> int:
     for pair in args.pairs:
         seed_a, seed_b = (int(s) for s in pair.split(":"))
         tag = f"{args.receiver}_{args.images}_{args.image_size[0]}"
-        cal_tag = f"{tag}_h{args.cal_second_height:g}" if args.cal_second_height else tag
+        cal_tag = (f"{tag}_h{args.cal_second_height:g}" if args.cal_second_height else tag) + \
+            (f"_v{args.cal_second_speed:g}" if args.cal_second_speed else "")
         sim_a, sim_b = work / f"sim_{seed_a}_{cal_tag}", work / f"sim_{seed_b}_{tag}"
         t0 = time.perf_counter()
-        simulate(sim_a, seed_a, args.images, tuple(args.image_size), args.receiver, args.cal_second_height or None)
+        simulate(sim_a, seed_a, args.images, tuple(args.image_size), args.receiver, args.cal_second_height or None,
+                 args.cal_second_speed or None)
         simulate(sim_b, seed_b, args.images, tuple(args.image_size), args.receiver)
         t_sim = time.perf_counter() - t0
         truth = json.loads((sim_a / "truth" / "lever_arm_delay.json").read_text())
@@ -116,6 +121,7 @@ def main() -> int:
 
         row = {"pair": pair, "receiver": args.receiver, "images": sb["images"]["registered"],
                "calibration_second_height_m": args.cal_second_height or None,
+               "calibration_second_speed_m_s": args.cal_second_speed or None,
                "lever_error_mm": ((lever - true_lever) * 1000).round(1).tolist(),
                "lever_sigma_mm": (lever_sig * 1000).round(1).tolist(),
                "delay_error_ms": round((lad["delay_s"] - true_delay) * 1000, 2),

@@ -25,6 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--second-height", type=float, metavar="M",
                    help="a calibration flight: every other pair of lines at this second height (m above take-off; "
                         "higher than --height keeps the overlaps)")
+    p.add_argument("--second-speed", type=float, metavar="M_S",
+                   help="... and at this ground speed (with --second-height: the same lines; alone: every other pair)")
     p.add_argument("--speed", type=float, help="ground speed on the lines (m/s; default 5, small 4)")
     p.add_argument("--size", type=float, nargs=2, metavar=("EAST_M", "NORTH_M"), help="work area size (m)")
     p.add_argument("--crs", type=int, metavar="EPSG", help="projected CRS of the site (default: its UTM zone)")
@@ -136,6 +138,8 @@ def options_from_args(args):
         fl["height_m"] = args.height
     if args.second_height is not None:
         fl["second_height_m"] = args.second_height
+    if args.second_speed is not None:
+        fl["second_speed_m_s"] = args.second_speed
     if args.speed is not None:
         fl["speed_m_s"] = args.speed
     if args.lever_arm is not None:

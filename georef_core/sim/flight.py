@@ -61,6 +61,8 @@ class FlightOptions:
     # a calibration flight: every other pair of lines flown at this second height (None: one height).
     # Two heights separate the lever arm from the focal length and principal point (docs/georeferencing.md)
     second_height_m: float | None = None
+    # ... and at this second ground speed (separates the along-track lever arm from the trigger delay)
+    second_speed_m_s: float | None = None
     speed_m_s: float = 5.0  # ground speed on the lines
     forward_overlap: float = 0.75
     side_overlap: float = 0.65
@@ -153,7 +155,8 @@ def plan_flight(site, camera: CameraModel, o: FlightOptions) -> FlightPlan:
     n_int = max(1, int(math.ceil((a1 - a0) / base - 1e-9)))
     bt = (a1 - a0) / n_int
     trig = a0 + bt * np.arange(-o.extra_triggers, n_int + o.extra_triggers + 1)
-    runin = o.speed_m_s**2 / (2 * o.horizontal_accel_m_s2) + 1.5 * o.speed_m_s
+    v_max = max(o.speed_m_s, o.second_speed_m_s or 0.0)
+    runin = v_max**2 / (2 * o.horizontal_accel_m_s2) + 1.5 * v_max
     lines = []
     for k in range(n_lines):
         off = c0 + k * sp if n_lines > 1 else 0.5 * (c0 + c1)
@@ -164,6 +167,7 @@ def plan_flight(site, camera: CameraModel, o: FlightOptions) -> FlightPlan:
         lines.append({
             "index": k, "offset_m": float(off), "direction_xy": dd.tolist(), "origin_xy": origin.tolist(),
             "height_m": float(o.second_height_m if (o.second_height_m is not None and (k // 2) % 2 == 1) else o.height_m),
+            "speed_m_s": float(o.second_speed_m_s if (o.second_speed_m_s is not None and (k // 2) % 2 == 1) else o.speed_m_s),
             "triggers_s": (np.sort(trig * (1 if fwd else -1))).tolist(),
             "start_xy": (origin + dd * (s_first - runin)).tolist(),
             "end_xy": (origin + dd * (s_last + runin)).tolist(),
@@ -421,7 +425,7 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
         if k > 0:
             move(prev, a, min(o.transit_speed_m_s, o.speed_m_s), o.horizontal_accel_m_s2, heading(prev, a, 0.0))
         hold(a, 0.5, heading(a, b, 0.0))
-        move(a, b, o.speed_m_s, o.horizontal_accel_m_s2, heading(a, b, 0.0))
+        move(a, b, ln.get("speed_m_s", o.speed_m_s), o.horizontal_accel_m_s2, heading(a, b, 0.0))
         hold(b, 0.5, heading(a, b, 0.0))
         line_enu.append((a, b))
         prev = b

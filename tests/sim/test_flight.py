@@ -134,7 +134,8 @@ def test_two_height_calibration_flight():
     """--second-height: every other pair of lines at the second height, triggered along the line as usual."""
     site = build_site(SiteOptions(size_m=(100.0, 60.0), stockpiles=("cone",), stockpile_scale=0.5), seed=12)
     cam = CameraModel.from_options(CameraOptions())
-    fo = FlightOptions(height_m=50.0, second_height_m=80.0, speed_m_s=6.0, static_before_s=10.0, static_after_s=5.0)
+    fo = FlightOptions(height_m=50.0, second_height_m=80.0, speed_m_s=6.0, second_speed_m_s=9.0, static_before_s=10.0,
+                       static_after_s=5.0)
     traj, events, plan = simulate_flight(site, cam, fo, seed=12)
     assert len(plan.lines) >= 4
     assert [ln["height_m"] for ln in plan.lines[:4]] == [50.0, 50.0, 80.0, 80.0]
@@ -143,3 +144,9 @@ def test_two_height_calibration_flight():
         want = plan.flight_h + plan.lines[e.line]["height_m"] - fo.height_m
         assert abs(hk - want) < 1.0, (e.name, hk, want)
     assert len(events) == sum(len(ln["triggers_s"]) for ln in plan.lines)
+    # the second pair of lines is flown faster
+    trig = np.array([e.trigger_gps_time_s for e in events])
+    speed = np.linalg.norm(traj.velocity_enu(trig)[:, :2], axis=1)
+    for e, v in zip(events, speed):
+        if 0 < events.index(e) < len(events) - 1 and abs(v - plan.lines[e.line]["speed_m_s"]) > 0.5:
+            raise AssertionError((e.name, v, plan.lines[e.line]["speed_m_s"]))
