@@ -105,6 +105,10 @@ def read_survey_json(survey_dir) -> dict:
         raise InputFileError(p, f"not valid JSON ({exc})") from None
 
 
+_SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "ratio", "navsys", "base_position_ecef_m",
+                        "known_start_ecef_m", "epsg", "events_csv"}
+
+
 def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None) -> dict:
     """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json) into
     ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
@@ -117,6 +121,11 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     survey_dir = Path(survey_dir)
     out = Path(out_dir) / "ppk"
     opt = dict(options or {})
+    unknown = sorted(set(opt) - _SURVEY_GNSS_OPTIONS)
+    if unknown:
+        from ..errors import ProcessingError
+
+        raise ProcessingError(f"unknown GNSS settings: {', '.join(unknown)} (known: {', '.join(sorted(_SURVEY_GNSS_OPTIONS))})")
     meta = read_survey_json(survey_dir)
     rovers = _files_of_kind(survey_dir / "rover", ("rinex-obs", "ubx"))
     bases = _files_of_kind(survey_dir / "base", ("rinex-obs",))
@@ -133,7 +142,12 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     if progress:
         progress("gnss", 0, 1)
     freq = opt.get("freq", "auto")
-    n_bands = 2 if (freq == "l1+l2" or (freq == "auto" and _has_second_frequency(rovers[0]))) else 1
+    bands = {"l1": 1, "l1+l2": 2, "l1+l2+l5": 3}
+    if freq != "auto" and freq not in bands:
+        from ..errors import ProcessingError
+
+        raise ProcessingError(f"GNSS settings: freq {freq!r} is not one of auto, {', '.join(bands)}")
+    n_bands = bands[freq] if freq != "auto" else (2 if _has_second_frequency(rovers[0]) else 1)
     mode = opt.get("mode", "auto")
     known = opt.get("known_start_ecef_m") or meta.get("takeoff_antenna_ecef_m")
     if mode == "auto":

@@ -248,3 +248,13 @@ def test_options_from_the_platform_settings():
         georef_options_from_dict({"levr": 1})
     with pytest.raises(ProcessingError, match="mode"):
         georef_options_from_dict({"mode": "fast"})
+
+
+def test_unknown_gnss_settings_are_refused(survey, tmp_path):
+    from georef_core.errors import ProcessingError
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    with pytest.raises(ProcessingError, match="unknown GNSS settings: elmsk"):
+        run_survey_gnss(survey, tmp_path, {"elmsk": 10})
+    with pytest.raises(ProcessingError, match="freq 'l2'"):
+        run_survey_gnss(survey, tmp_path, {"freq": "l2"})
