@@ -43,7 +43,8 @@ def test_sign_in_errors_and_keyboard(page):
     page.get_by_role("heading", name="Sites").wait_for()
     card = page.locator(".site-card", has_text=e2e_platform.DEMO_SITE)
     card.wait_for()
-    assert "No survey yet" in card.inner_text() or "Latest survey" in card.inner_text()
+    # the card's figures arrive after the card itself: wait for them (a slow machine shows "Loading figures...")
+    card.filter(has_text=re.compile("No survey yet|Latest survey")).wait_for(timeout=60_000)
     # signing out returns to the sign-in form, and the session is gone on the server too
     page.get_by_role("button", name="Sign out").click()
     page.get_by_role("heading", name="Sign in to Georef").wait_for()
