@@ -7,25 +7,20 @@ couple of metres, so the bands here are metres: what is tested is the chain, not
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pytest
 
 from georef_core.cli.main import main
 
+from ..shared_images import shared_image_set
+
 pytest.importorskip("pycolmap")
-
-
-def _copr_dir() -> Path:
-    env = os.environ.get("GEOREF_SHARED_DATA")
-    shared = Path(env) if env else Path(__file__).parents[2].parent / "shared"
-    return shared / "data" / "images" / "copr_subset40"
 
 
 @pytest.fixture(scope="module")
 def copr_survey(tmp_path_factory) -> Path:
-    src = _copr_dir()
+    src = shared_image_set("copr_subset40")
     if not (src / "gcp_list_1600px.txt").is_file():
         pytest.skip(f"shared data not available ({src})")
     survey = tmp_path_factory.mktemp("copr") / "survey"

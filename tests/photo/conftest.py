@@ -4,21 +4,17 @@ folder is absent) and a small simulated survey; each SfM run happens once per se
 from __future__ import annotations
 
 import importlib.util
-import os
 from pathlib import Path
 
 import pytest
 
+from ..shared_images import shared_image_set
+
 SIM_SEED = 7
 
 
-def shared_dir() -> Path:
-    env = os.environ.get("GEOREF_SHARED_DATA")
-    return Path(env) if env else Path(__file__).parents[2].parent / "shared"
-
-
 def caliterra_dir() -> Path:
-    return shared_dir() / "data" / "images" / "caliterra_subset30"
+    return shared_image_set("caliterra_subset30")
 
 
 @pytest.fixture(scope="session")
