@@ -11,6 +11,7 @@ import { useLoad } from "../hooks";
 import { EtaEstimator } from "../lib/eta";
 import { formatDateTime, formatDuration } from "../lib/format";
 import { href, navigate } from "../router";
+import { useStartRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
 const STEP_TITLE: Record<string, string> = {
@@ -61,21 +62,7 @@ export function ProcessingView({ ctx, runId }: { ctx: SurveyContext; runId: stri
 }
 
 function StartRun({ ctx, compact }: { ctx: SurveyContext; compact?: boolean }) {
-  const [error, setError] = useState<Error | null>(null);
-  const [busy, setBusy] = useState(false);
-  const start = async () => {
-    setBusy(true);
-    setError(null);
-    try {
-      const run = await api.post<RunDetail>(`/surveys/${ctx.survey.id}/runs`, {});
-      ctx.reloadRuns();
-      navigate(`${href("surveys", ctx.survey.id, "processing")}?run=${run.id}`);
-    } catch (e) {
-      setError(e as Error);
-    } finally {
-      setBusy(false);
-    }
-  };
+  const { start, busy, error } = useStartRun(ctx);
   return (
     <div class={compact ? "start-run compact" : "start-run"}>
       <button type="button" class={compact ? "secondary" : "primary"} onClick={start} disabled={busy}>{compact ? "New run" : "Start processing"}</button>

@@ -5,16 +5,16 @@
 
 import { useEffect, useMemo, useRef, useState } from "preact/hooks";
 import { api, mapLimit } from "../api/client";
-import type { Check, RunDetail, SurveyFile } from "../api/types";
+import type { Check, SurveyFile } from "../api/types";
 import { ErrorBox, Loading, Note, ProgressBar } from "../components/ui";
 import { useLoad } from "../hooks";
 import { formatBytes, formatDuration } from "../lib/format";
 import { scanObservationFile } from "../lib/obsScan";
 import { type CheckedFile, type Problem, assignRoles, isoUtc, preflight, spanOf } from "../lib/preflight";
 import { type ObsRole, type Sniffed, sniffFile, uploadKindOf } from "../lib/sniff";
-import { href, navigate } from "../router";
 import { type PickedFile, filesFromDrop, filesFromInput, isClutter } from "../upload/collect";
 import { type UploadItem, UploadQueue } from "../upload/uploader";
+import { useStartRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
 interface LocalFile extends CheckedFile {
@@ -377,21 +377,7 @@ function ServerFiles({ files, surveyId, canEdit, onChange }: { files: SurveyFile
 }
 
 function StartProcessing({ ctx, ready, busyUpload }: { ctx: SurveyContext; ready: boolean; busyUpload: boolean }) {
-  const [busy, setBusy] = useState(false);
-  const [error, setError] = useState<Error | null>(null);
-  const start = async () => {
-    setBusy(true);
-    setError(null);
-    try {
-      const run = await api.post<RunDetail>(`/surveys/${ctx.survey.id}/runs`, {});
-      ctx.reloadRuns();
-      navigate(`${href("surveys", ctx.survey.id, "processing")}?run=${run.id}`);
-    } catch (e) {
-      setError(e as Error);
-    } finally {
-      setBusy(false);
-    }
-  };
+  const { start, busy, error } = useStartRun(ctx);
   return (
     <div class="actions">
       <button type="button" class="primary" onClick={start} disabled={busy || busyUpload}>{busy ? "Starting…" : "Start processing"}</button>
