@@ -158,17 +158,17 @@ def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None):
     return C[i] - prob.antenna_enu_m - a - prob.antenna_velocity_enu_m_s * delay, a
 
 
-def _jacobi_scale(S: np.ndarray) -> np.ndarray:
+def _jacobi_scaled(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(s, diag(s) S diag(s)) with s = 1/sqrt(diag S): the columns of the reduced normal matrix span ten
+    orders of magnitude (k3 against a focal length in pixels), which unscaled would lose the
+    ill-determined directions (lever arm z against f) to rounding."""
     d = np.diag(S)
-    return 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
+    s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
+    return s, S * s[:, None] * s[None, :]
 
 
 def _solve_scaled(S: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve S x = rhs after symmetric Jacobi scaling: the columns of the reduced normal matrix span
-    ten orders of magnitude (k3 against a focal length in pixels), which unscaled would lose the
-    ill-determined directions (lever arm z against f) to rounding."""
-    s = _jacobi_scale(S)
-    Ss = S * s[:, None] * s[None, :]
+    s, Ss = _jacobi_scaled(S)
     try:
         y = np.linalg.solve(Ss, rhs * s)
     except np.linalg.LinAlgError:
@@ -177,8 +177,7 @@ def _solve_scaled(S: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 def _inverse_scaled(S: np.ndarray) -> np.ndarray:
-    s = _jacobi_scale(S)
-    Ss = S * s[:, None] * s[None, :]
+    s, Ss = _jacobi_scaled(S)
     try:
         inv = np.linalg.inv(Ss)
     except np.linalg.LinAlgError:

@@ -53,9 +53,9 @@ def register(sub) -> None:
 
 
 def cmd_georef(args) -> int:
-    from ..steps.georef import GeorefOptions, run_georef
+    from ..steps.georef import MODE_ALIASES, GeorefOptions, run_georef
 
-    mode = {"a": "gcp", "b": "similarity", "c": "joint"}.get(args.mode, args.mode)
+    mode = MODE_ALIASES.get(args.mode, args.mode)
     lever = parse_three_numbers(args.lever_arm, "--lever-arm") if args.lever_arm else None
     lever_sigma, delay, intrinsics = args.lever_arm_sigma, args.delay, None
     if args.calibration:

@@ -37,6 +37,7 @@ from ..progress import ProgressFn
 from ..project_frame import ProjectFrame, utm_epsg_for
 
 MODES = ("joint", "gcp", "similarity")
+MODE_ALIASES = {"a": "gcp", "b": "similarity", "c": "joint"}   # Daakir et al.'s letters
 SFM_MODELS = {"radial": "RADIAL", "brown": "OPENCV", "fisheye": "OPENCV_FISHEYE"}
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
 
@@ -86,9 +87,9 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
         if d.get(key) is not None:
             d[key] = tuple(float(v) for v in d[key])
     opts = GeorefOptions(**d)
-    if opts.mode not in MODES + ("a", "b", "c"):
-        raise ProcessingError(f"georeferencing mode {opts.mode!r}: one of {', '.join(MODES)}")
-    opts.mode = {"a": "gcp", "b": "similarity", "c": "joint"}.get(opts.mode, opts.mode)
+    opts.mode = MODE_ALIASES.get(opts.mode, opts.mode)
+    if opts.mode not in MODES:
+        raise ProcessingError(f"georeferencing mode {d.get('mode')!r}: one of {', '.join(MODES)}")
     return opts
 
 
