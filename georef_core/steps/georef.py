@@ -190,6 +190,14 @@ def exif_trigger_times(survey_dir: Path, image_names: list[str], offset_s: float
     return times, warnings
 
 
+def _ppk_events_source(out: Path) -> str | None:
+    """Where the camera events of OUT_DIR/ppk came from (ppk/summary.json), None when unknown."""
+    try:
+        return json.loads((out / "ppk" / "summary.json").read_text())["events"]["source"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def write_trigger_csv(path: Path, times: dict[str, float]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
@@ -342,14 +350,19 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         ev_csv = out / "ppk" / "events.csv"
         times, times_source = None, ""
         gnss_options = dict(opts.gnss_options)
+        trig = out / "exif_triggers.csv"
+        previous_triggers = trig.read_text() if trig.is_file() else None
         if opts.exif_time_offset_s is not None:
             times, w = exif_trigger_times(survey_dir, image_names, opts.exif_time_offset_s)
             warnings += w
-            trig = out / "exif_triggers.csv"
             write_trigger_csv(trig, times)
             gnss_options["events_csv"] = str(trig)
             times_source = f"EXIF times {opts.exif_time_offset_s:+.3f} s"
-        if not (opts.reuse and ev_csv.is_file()) or times is not None:
+        # an earlier PPK is reused only when it was made for the same trigger times
+        made_from_exif = _ppk_events_source(out) == str(trig)
+        same_triggers = (made_from_exif and previous_triggers == trig.read_text()) if times is not None \
+            else not made_from_exif
+        if not (opts.reuse and ev_csv.is_file() and same_triggers):
             run_survey_gnss(survey_dir, out, gnss_options)
         if ev_csv.is_file():
             gnss = match_images_to_events(survey_dir, image_names, ev_csv, times, times_source)

@@ -191,6 +191,16 @@ def test_trigger_times_from_exif_with_a_clock_offset(survey, first_run, tmp_path
     assert set(exif) == set(truth)
     assert max(abs(exif[k] - truth[k]) for k in truth) < 0.0011
     assert s["rolling_shutter"]["rolling_shutter"] is None        # SimCam-GS is not in the shutter table
+    # the same triggers again: the PPK is reused; then the camera events: the PPK is redone for them
+    ppk_summary = out / "ppk" / "summary.json"
+    made = ppk_summary.stat().st_mtime_ns
+    assert main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out",
+                 "--exif-time-offset", f"{-delay:.4f}"]) == 0
+    assert ppk_summary.stat().st_mtime_ns == made
+    assert main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
+    assert ppk_summary.stat().st_mtime_ns != made
+    s2 = json.loads((out / "georef_summary.json").read_text())
+    assert s2["images"]["with_gnss"] == 12 and "events.csv" in s2["gnss_source"]
     d = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in json.loads((out / "residuals.json").read_text())["points"]])
     assert np.all(np.abs(d[:, :2]) < 0.03) and np.all(np.abs(d[:, 2]) < 0.05), d
 
