@@ -122,6 +122,20 @@ def single_differences(d, e, geo):
 
 # ---------------------------------------------------------------------------------------------- states
 @njit(cache=True)
+def reference_satellite(ok, b, sys_code, sys, el):
+    """The reference of the double differences of system ``sys`` on band ``b``: the highest satellite
+    with a usable signal (``ok[s, b]``), and how many satellites have one. (ref, count); ref -1 if none."""
+    ref = -1
+    count = 0
+    for s in range(ok.shape[0]):
+        if ok[s, b] and sys_code[s] == sys:
+            count += 1
+            if ref < 0 or el[s] > el[ref]:
+                ref = s
+    return ref, count
+
+
+@njit(cache=True)
 def reset_state(x, p, i):
     x[i] = 0.0
     p[i, :] = 0.0
@@ -181,17 +195,8 @@ def known_start_ambiguities(d, c, x, p, obs_ok, sd_phase, e):
     el, sys_code, is_glonass, lam = d.el[e], d.sys_code, d.is_glonass, d.lam
     for b in range(n_f):
         for sys in range(c.n_systems):
-            ref = -1
-            count = 0
-            skip = False
-            for s in range(n_s):
-                if obs_ok[s, b] and sys_code[s] == sys:
-                    if is_glonass[s]:
-                        skip = True
-                    count += 1
-                    if ref < 0 or el[s] > el[ref]:
-                        ref = s
-            if skip or count < 2:
+            ref, count = reference_satellite(obs_ok, b, sys_code, sys, el)
+            if count < 2 or is_glonass[ref]:   # (a system is all GLONASS or none)
                 continue
             i_ref = c.n_kin + ref * n_f + b
             n_ref = np.round(x[i_ref])
@@ -245,13 +250,7 @@ def dd_rows(d, c, e, obs_ok, code_ok, sd_phase, sd_code, x, los):
                 is_code = kind == 1
                 ok = code_ok if is_code else obs_ok
                 fact = code_factor(c, b, is_code)
-                ref = -1
-                count = 0
-                for s in range(n_s):
-                    if ok[s, b] and sys_code[s] == sys:
-                        count += 1
-                        if ref < 0 or el[s] > el[ref]:
-                            ref = s
+                ref, count = reference_satellite(ok, b, sys_code, sys, el)
                 if count < 2:
                     continue
                 sref = sd_sigma2(c, is_glonass[ref], el[ref], fact, age)
@@ -446,13 +445,7 @@ def phase_residuals(d, c, e, pos, xs, ok_all):
     k = 0
     for b in range(n_f):
         for sys in range(c.n_systems):
-            ref = -1
-            count = 0
-            for s in range(n_s):
-                if ok_all[s, b] and sys_code[s] == sys:
-                    count += 1
-                    if ref < 0 or el[s] > el[ref]:
-                        ref = s
+            ref, count = reference_satellite(ok_all, b, sys_code, sys, el)
             if count < 2:
                 continue
             corr_ref = sd_phase[ref, b] - lam[ref, b] * xs[c.n_kin + ref * n_f + b]
