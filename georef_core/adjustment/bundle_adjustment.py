@@ -4,7 +4,8 @@ eq. 6, solved jointly with the tie points as the paper's conclusion proposes).
 Unknowns, all in the local ENU frame of the project (metres, radians, seconds):
 
 * per camera: attitude (``R_cam_to_enu``, updated by a small rotation on the left) and centre ``C_i``;
-* the shared intrinsics (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2; which are free is a choice);
+* the shared intrinsics (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2, or the fisheye's f, cx, cy,
+  k1..k4; which are free is a choice);
 * the lever arm ``L`` (camera frame) and the trigger delay ``dt``;
 * the tie points and the control points ``X_p``.
 
@@ -32,7 +33,7 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from ..errors import ProcessingError
-from .camera_model import PARAM_NAMES, project_camera_points
+from .camera_model import param_names, project_camera_points
 
 _INTR_STEP = np.array([1e-2, 1e-2, 1e-2, 1e-6, 1e-6, 1e-6, 1e-7, 1e-7])
 
@@ -69,6 +70,7 @@ class BundleProblem:
     # a-priori lever arm (e.g. tape-measured) used as a weighted observation when the lever arm is estimated
     lever_arm_prior_cam_m: np.ndarray | None = None
     lever_arm_prior_sigma_m: np.ndarray | None = None
+    fisheye: bool = False             # projection of ``intrinsics`` (see camera_model)
 
 
 @dataclass
@@ -119,7 +121,7 @@ class BundleResult:
 class _Layout:
     def __init__(self, prob: BundleProblem, opt: BundleOptions):
         self.intr_idx = np.flatnonzero(opt.free_intrinsics)
-        names = [PARAM_NAMES[i] for i in self.intr_idx]
+        names = [param_names(prob.fisheye)[i] for i in self.intr_idx]
         self.n_intr = len(self.intr_idx)
         self.lever = opt.estimate_lever_arm and len(prob.gnss_camera) > 0
         self.delay = opt.estimate_delay and len(prob.gnss_camera) > 0
@@ -145,7 +147,7 @@ def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None):
     Rw2c = np.transpose(R[prob.obs_camera], (0, 2, 1))
     d = X[prob.obs_point] - C[prob.obs_camera]
     p = np.einsum("mij,mj->mi", Rw2c, d)
-    return project_camera_points(p, intr), p, d, Rw2c
+    return project_camera_points(p, intr, prob.fisheye), p, d, Rw2c
 
 
 def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None):
@@ -262,12 +264,14 @@ class BundleAdjuster:
         for k in range(3):
             dp = np.zeros_like(pc)
             dp[:, k] = h
-            Jp[:, :, k] = (project_camera_points(pc + dp, p.intrinsics) - project_camera_points(pc - dp, p.intrinsics)) / (2 * h)[:, None]
+            Jp[:, :, k] = (project_camera_points(pc + dp, p.intrinsics, p.fisheye)
+                            - project_camera_points(pc - dp, p.intrinsics, p.fisheye)) / (2 * h)[:, None]
         Ji = np.empty((M, 2, lay.n_intr))
         for c, k in enumerate(lay.intr_idx):
             e = np.zeros(8)
             e[k] = _INTR_STEP[k]
-            Ji[:, :, c] = (project_camera_points(pc, p.intrinsics + e) - project_camera_points(pc, p.intrinsics - e)) / (2 * _INTR_STEP[k])
+            Ji[:, :, c] = (project_camera_points(pc, p.intrinsics + e, p.fisheye)
+                           - project_camera_points(pc, p.intrinsics - e, p.fisheye)) / (2 * _INTR_STEP[k])
         JX = np.einsum("mij,mjk->mik", Jp, Rw2c)
         Jrot = np.einsum("mij,mjk->mik", JX, skew(d))
         JX *= sw[:, None, None]

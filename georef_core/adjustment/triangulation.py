@@ -19,18 +19,20 @@ class Triangulated:
     max_angle_deg: float         # widest intersection angle
 
 
-def _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr):
-    xy = undistort_pixels(np.asarray(uv_px, float), intr)
+def _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr, fisheye=False):
+    xy = undistort_pixels(np.asarray(uv_px, float), intr, fisheye=fisheye)
     d_cam = np.column_stack([xy, np.ones(len(xy))])
     d = np.einsum("nij,nj->ni", R_cam_to_enu[cam_idx], d_cam)
     return centres[cam_idx], d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1.0, iterations: int = 5) -> Triangulated:
-    """Least-squares intersection of the rays (midpoint), refined by Gauss-Newton on the reprojection."""
+def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1.0, iterations: int = 5,
+                fisheye: bool = False) -> Triangulated:
+    """Least-squares intersection of the rays (midpoint), refined by Gauss-Newton on the reprojection.
+    ``intr`` and ``fisheye``: the camera (see camera_model)."""
     uv_px = np.asarray(uv_px, float)
     cam_idx = np.asarray(cam_idx, int)
-    o, d = _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr)
+    o, d = _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr, fisheye)
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for oi, di in zip(o, d):
@@ -42,7 +44,7 @@ def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1
     N = np.eye(3)
     for _ in range(iterations):
         pc = np.einsum("nij,nj->ni", Rw2c, X[None] - centres[cam_idx])
-        uv = project_camera_points(pc, intr)
+        uv = project_camera_points(pc, intr, fisheye)
         J = np.zeros((len(uv_px), 2, 3))
         h = 1e-5
         for k in range(3):
@@ -50,7 +52,7 @@ def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1
             e[k] = h
             pp = np.einsum("nij,nj->ni", Rw2c, (X + e)[None] - centres[cam_idx])
             pm = np.einsum("nij,nj->ni", Rw2c, (X - e)[None] - centres[cam_idx])
-            J[:, :, k] = (project_camera_points(pp, intr) - project_camera_points(pm, intr)) / (2 * h)
+            J[:, :, k] = (project_camera_points(pp, intr, fisheye) - project_camera_points(pm, intr, fisheye)) / (2 * h)
         Jm = J.reshape(-1, 3)
         r = (uv - uv_px).reshape(-1)
         N = Jm.T @ Jm
@@ -59,7 +61,7 @@ def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1
         if np.linalg.norm(dx) < 1e-7:
             break
     pc = np.einsum("nij,nj->ni", Rw2c, X[None] - centres[cam_idx])
-    res = project_camera_points(pc, intr) - uv_px
+    res = project_camera_points(pc, intr, fisheye) - uv_px
     cos = np.clip(d @ d.T, -1, 1)
     ang = float(np.degrees(np.arccos(cos.min()))) if len(d) > 1 else 0.0
     try:
@@ -79,7 +81,7 @@ class BlunderReport:
 
 
 def find_blunders(name: str, images: list[str], uv_px, cam_idx, R_cam_to_enu, centres, intr,
-                  threshold_px: float = 5.0) -> tuple[list[int], list[BlunderReport]]:
+                  threshold_px: float = 5.0, fisheye: bool = False) -> tuple[list[int], list[BlunderReport]]:
     """Measurements of one point that do not triangulate with the others. With three or more
     measurements each is left out in turn: a measurement whose leave-one-out prediction misses by more
     than ``threshold_px`` while the others agree among themselves is a blunder (removed one at a time,
@@ -90,17 +92,17 @@ def find_blunders(name: str, images: list[str], uv_px, cam_idx, R_cam_to_enu, ce
     uv_px = np.asarray(uv_px, float)
     cam_idx = np.asarray(cam_idx, int)
     while len(keep) >= 3:
-        full = triangulate(uv_px[keep], cam_idx[keep], R_cam_to_enu, centres, intr)
+        full = triangulate(uv_px[keep], cam_idx[keep], R_cam_to_enu, centres, intr, fisheye=fisheye)
         if np.max(np.linalg.norm(full.residual_px, axis=1)) <= threshold_px:
             break
         best = None
         for j in range(len(keep)):
             rest = keep[:j] + keep[j + 1:]
-            t = triangulate(uv_px[rest], cam_idx[rest], R_cam_to_enu, centres, intr)
+            t = triangulate(uv_px[rest], cam_idx[rest], R_cam_to_enu, centres, intr, fisheye=fisheye)
             others = float(np.sqrt(np.mean(np.sum(t.residual_px ** 2, 1))))
             i = keep[j]
             pc = R_cam_to_enu[cam_idx[i]].T @ (t.xyz_enu_m - centres[cam_idx[i]])
-            miss = float(np.linalg.norm(project_camera_points(pc[None], intr)[0] - uv_px[i])) if pc[2] > 0 else np.inf
+            miss = float(np.linalg.norm(project_camera_points(pc[None], intr, fisheye)[0] - uv_px[i])) if pc[2] > 0 else np.inf
             if best is None or others < best[1]:
                 best = (j, others, miss)
         j, others, miss = best
@@ -113,7 +115,7 @@ def find_blunders(name: str, images: list[str], uv_px, cam_idx, R_cam_to_enu, ce
                                      f"agree to {others:.2f} px); it was left out"))
         keep.pop(j)
     if len(keep) == 2:
-        t = triangulate(uv_px[keep], cam_idx[keep], R_cam_to_enu, centres, intr)
+        t = triangulate(uv_px[keep], cam_idx[keep], R_cam_to_enu, centres, intr, fisheye=fisheye)
         if np.max(np.linalg.norm(t.residual_px, axis=1)) > threshold_px:
             reports.append(BlunderReport(name, ", ".join(images[i] for i in keep), float(np.max(np.linalg.norm(t.residual_px, axis=1))),
                                          float("nan"), f"point {name}: its two measurements ({images[keep[0]]}, "

@@ -19,8 +19,9 @@ def register(sub) -> None:
                    help="joint (c, default): one adjustment of tie points, GNSS positions, lever arm, delay, camera and "
                         "control points; gcp (a): orient with control points, then lever arm + delay; similarity (b): "
                         "7-parameter similarity + delay with a known lever arm, no control")
-    p.add_argument("--camera-model", choices=("radial", "brown", "fisheye"), default="brown",
-                   help="self-calibration model (default brown: f, cx, cy, k1-k3, p1, p2)")
+    p.add_argument("--camera-model", choices=("radial", "brown", "fisheye"), default=None,
+                   help="self-calibration model: radial (f, cx, cy, k1, k2), brown (default: f, cx, cy, k1-k3, p1, "
+                        "p2) or fisheye (OpenCV fisheye: f, cx, cy, k1-k4); with --calibration, the calibration's")
     p.add_argument("--crs", type=int, metavar="EPSG", help="project CRS EPSG code (default survey.json, else UTM)")
     p.add_argument("--points-crs", help="CRS of gcp/points.csv (e.g. EPSG:32633; default survey.json or gcp_list.txt)")
     p.add_argument("--control", help="control points: 'all', 'none' or NAME,NAME,... (the others become check points; "
@@ -58,16 +59,22 @@ def cmd_georef(args) -> int:
     mode = MODE_ALIASES.get(args.mode, args.mode)
     lever = parse_three_numbers(args.lever_arm, "--lever-arm") if args.lever_arm else None
     lever_sigma, delay, intrinsics = args.lever_arm_sigma, args.delay, None
+    camera_model = args.camera_model or "brown"
     if args.calibration:
         from ..steps.georef import load_calibration
 
         cal = load_calibration(args.calibration)
+        if args.camera_model and args.camera_model != cal["camera_model"]:
+            print(f"georef: --camera-model {args.camera_model} does not match the calibration's camera model "
+                  f"{cal['camera_model']} ({cal['source']})", file=sys.stderr)
+            return 2
+        camera_model = cal["camera_model"]
         if lever is None:
             lever, lever_sigma = cal["lever_arm_cam_m"], lever_sigma or cal["lever_arm_sigma_m"]
         if args.delay is None:
             delay = cal["delay_s"]
         intrinsics = cal["intrinsics"]
-    opts = GeorefOptions(mode=mode, camera_model=args.camera_model, project_epsg=args.crs, points_crs=args.points_crs,
+    opts = GeorefOptions(mode=mode, camera_model=camera_model, project_epsg=args.crs, points_crs=args.points_crs,
                          control=args.control, check=args.check, fixed_intrinsics=intrinsics,
                          lever_arm_cam_m=lever, lever_arm_sigma_m=lever_sigma, delay_s=delay or 0.0,
                          estimate_delay=not args.fix_delay,

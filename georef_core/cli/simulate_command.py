@@ -31,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=float, nargs=2, metavar=("EAST_M", "NORTH_M"), help="work area size (m)")
     p.add_argument("--crs", type=int, metavar="EPSG", help="projected CRS of the site (default: its UTM zone)")
     p.add_argument("--image-size", type=int, nargs=2, metavar=("W", "H"), help="image size in pixels")
+    p.add_argument("--lens", choices=["perspective", "fisheye"],
+                   help="camera lens: perspective (default; Brown distortion) or fisheye (a wide-angle action "
+                        "camera, OpenCV fisheye model, about 90 degrees across)")
     p.add_argument("--images", type=int, metavar="N",
                    help="about N images: the work area (both sides, aspect ratio kept) is scaled until the planned "
                         "flight takes the image count nearest N; height, overlaps and camera are kept; on a small "
@@ -161,6 +164,10 @@ def options_from_args(args):
         if not crs.is_projected:
             raise GeorefError(f"--crs {args.crs} ({crs.name}) is not a projected CRS: the site needs metric E/N axes")
         o.site = replace(o.site, epsg=args.crs)
+    if args.lens == "fisheye":
+        from ..sim.camera import CameraOptions
+
+        o.camera = CameraOptions.fisheye().scaled(o.camera.width_px, o.camera.height_px)
     if args.image_size is not None:
         o.camera = o.camera.scaled(*args.image_size)
     if args.workers is not None:

@@ -16,12 +16,15 @@ import numpy as np
 from ..errors import InputFileError
 from ..photo.oriented_images import OrientedCamera, OrientedImages
 
-SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+SUPPORTED_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE")
+FISHEYE_MODELS = ("OPENCV_FISHEYE",)
 
 
 def opencv_distortion_coeffs(camera: OrientedCamera) -> np.ndarray:
     """OpenCV distortion vector of a COLMAP camera: (k1, k2, p1, p2, k3) or, for FULL_OPENCV with rational
-    terms, (k1, k2, p1, p2, k3, k4, k5, k6)."""
+    terms, (k1, k2, p1, p2, k3, k4, k5, k6); for OPENCV_FISHEYE cv2.fisheye's (k1, k2, k3, k4)."""
+    if camera.model == "OPENCV_FISHEYE":
+        return np.array([float(v) for v in camera.params[4:8]])
     if camera.model == "FULL_OPENCV":
         p = list(camera.params) + [0.0] * 12
         coeffs = np.array(p[4:12], float)
@@ -43,6 +46,7 @@ class CameraView:
     centre_enu_m: np.ndarray  # 3
     full_width: int
     full_height: int
+    fisheye: bool = False  # dist is cv2.fisheye's (k1..k4 on the ray angle) instead of the pinhole model's
 
     # --- geometry --------------------------------------------------------------------------------
     @property
@@ -87,7 +91,7 @@ class CameraView:
         with np.errstate(divide="ignore", invalid="ignore"):
             x = pc[:, 0] / z
             y = pc[:, 1] / z
-        xd, yd = apply_distortion(x, y, self.dist)
+        xd, yd = (apply_fisheye_distortion if self.fisheye else apply_distortion)(x, y, self.dist)
         uv = np.stack([self.K[0, 0] * xd + self.K[0, 2], self.K[1, 1] * yd + self.K[1, 2]], axis=1)
         return uv, z
 
@@ -108,12 +112,25 @@ class CameraView:
         """The image file at this view's scale (BGR uint8, or grey)."""
         return read_image_at(self.path, self.full_width, self.full_height, self.width, self.height, gray)
 
+    def undistort_points(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels of the real (distorted) image (N, 2) -> undistorted normalised coordinates x/z, y/z (N, 2)."""
+        pts = np.asarray(uv, np.float64).reshape(-1, 1, 2)
+        if self.fisheye:
+            return cv2.fisheye.undistortPoints(pts, self.K, self.dist).reshape(-1, 2)
+        return cv2.undistortPoints(pts, self.K, self.dist).reshape(-1, 2)
+
+    def rectify_maps(self, R: np.ndarray, K_new: np.ndarray, size: tuple[int, int], map_type=cv2.CV_32FC1):
+        """cv2.remap maps from this (distorted) view's pixels to a pinhole grid with calibration ``K_new``,
+        ``size`` (width, height) and the rotation ``R`` from this camera's axes to the new one's."""
+        if self.fisheye:
+            return cv2.fisheye.initUndistortRectifyMap(self.K, self.dist, R, K_new, size, map_type)
+        return cv2.initUndistortRectifyMap(self.K, self.dist, R, K_new, size, map_type)
+
     def undistort_maps(self, pinhole: "CameraView", R_rect: np.ndarray | None = None):
         """cv2.remap maps from this (distorted) view's pixels to the pinhole grid ``pinhole`` (same centre;
         its own K, size and, when given, the rotation R_rect from this camera's axes to ``pinhole``'s)."""
         R = np.eye(3) if R_rect is None else R_rect
-        return cv2.initUndistortRectifyMap(self.K, self.dist, R, pinhole.K, (pinhole.width, pinhole.height),
-                                           cv2.CV_32FC1)
+        return self.rectify_maps(R, pinhole.K, (pinhole.width, pinhole.height))
 
 
 def apply_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -129,6 +146,19 @@ def apply_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np
     xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
     return xd, yd
+
+
+def apply_fisheye_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.fisheye distortion of normalised coordinates: the ray angle theta = atan(r) becomes the radius
+    theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)."""
+    k1, k2, k3, k4 = (list(dist) + [0.0] * 4)[:4]
+    r = np.hypot(x, y)
+    theta = np.arctan(r)
+    t2 = theta * theta
+    theta_d = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(r > 1e-12, theta_d / r, 1.0)
+    return x * scale, y * scale
 
 
 def read_image_at(path: Path, full_width: int, full_height: int, width: int, height: int,
@@ -162,7 +192,7 @@ def views_from_oriented(oriented: OrientedImages, max_image_size: int | None, so
             raise InputFileError(source or oriented.image_dir, f"image {im.name}: R_cam_to_enu is not a rotation")
         v = CameraView(im.name, oriented.image_path(im), cam.width, cam.height, cam.K(),
                        opencv_distortion_coeffs(cam), R, np.asarray(im.centre_enu_m, float),
-                       cam.width, cam.height)
+                       cam.width, cam.height, fisheye=cam.model in FISHEYE_MODELS)
         s = 1.0 if not max_image_size else min(1.0, max_image_size / max(cam.width, cam.height))
         views.append(v.scaled(s) if s < 1.0 else v)
     return views

@@ -142,7 +142,7 @@ def view_footprints(views: list[CameraView], frame: ProjectFrame, h_lo: float, h
         t = np.linspace(0, 1, n)
         u = np.concatenate([t * v.width, t * v.width, np.zeros(n), np.full(n, v.width)]) - 0.5
         w = np.concatenate([np.zeros(n), np.full(n, v.height), t * v.height, t * v.height]) - 0.5
-        xy = cv2.undistortPoints(np.stack([u, w], 1).reshape(-1, 1, 2), v.K, v.dist).reshape(-1, 2)
+        xy = v.undistort_points(np.stack([u, w], 1))
         rays = np.column_stack([xy, np.ones(len(xy))]) @ v.R_world_to_cam
         rays = np.vstack([rays, v.optical_axis_enu])
         pts = []

@@ -64,7 +64,7 @@ def _normalised_outline(view: CameraView, R_to_rect: np.ndarray, n: int = 24) ->
     border = np.concatenate([
         np.stack([t * (w - 1), np.zeros(n)], 1), np.stack([t * (w - 1), np.full(n, h - 1.0)], 1),
         np.stack([np.zeros(n), t * (h - 1)], 1), np.stack([np.full(n, w - 1.0), t * (h - 1)], 1)])
-    xy = cv2.undistortPoints(border.reshape(-1, 1, 2), view.K, view.dist).reshape(-1, 2)
+    xy = view.undistort_points(border)
     rays = np.column_stack([xy, np.ones(len(xy))]) @ R_to_rect.T
     rays = rays[rays[:, 2] > 1e-6]
     return rays[:, :2] / rays[:, 2:3]
@@ -123,8 +123,8 @@ def rectify_pair(ref: CameraView, src: CameraView, depth_lo_m: float, depth_hi_m
 def rectify_images(pair: RectifiedPair, ref: CameraView, src: CameraView, ref_img: np.ndarray,
                    src_img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     size = (pair.width, pair.height)
-    m1 = cv2.initUndistortRectifyMap(ref.K, ref.dist, pair.R_ref_to_rect, pair.K_ref, size, cv2.CV_16SC2)
-    m2 = cv2.initUndistortRectifyMap(src.K, src.dist, pair.R_src_to_rect, pair.K_src, size, cv2.CV_16SC2)
+    m1 = ref.rectify_maps(pair.R_ref_to_rect, pair.K_ref, size, cv2.CV_16SC2)
+    m2 = src.rectify_maps(pair.R_src_to_rect, pair.K_src, size, cv2.CV_16SC2)
     a = cv2.remap(ref_img, m1[0], m1[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     b = cv2.remap(src_img, m2[0], m2[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return a, b

@@ -81,8 +81,8 @@ def triangulate_features(views: list[CameraView], max_size: int = 1024, n_featur
         if len(m) < 8:
             continue
         vi, vj = small_views[i], small_views[j]
-        xi = cv2.undistortPoints(pi[m[:, 0]].reshape(-1, 1, 2), vi.K, vi.dist).reshape(-1, 2)
-        xj = cv2.undistortPoints(pj[m[:, 1]].reshape(-1, 1, 2), vj.K, vj.dist).reshape(-1, 2)
+        xi = vi.undistort_points(pi[m[:, 0]])
+        xj = vj.undistort_points(pj[m[:, 1]])
         origin = vi.centre_enu_m
         Pi = np.hstack([vi.R_world_to_cam, (-vi.R_world_to_cam @ (vi.centre_enu_m - origin))[:, None]])
         Pj = np.hstack([vj.R_world_to_cam, (-vj.R_world_to_cam @ (vj.centre_enu_m - origin))[:, None]])

@@ -18,7 +18,7 @@ import pycolmap
 
 PYCOLMAP_VERSION = getattr(pycolmap, "__version__", "unknown")
 
-CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "OPENCV_FISHEYE")
 
 
 # ----------------------------------------------------------------------------- plain result types

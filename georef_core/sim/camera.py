@@ -1,4 +1,5 @@
-"""Pinhole camera with Brown-Conrady distortion (OpenCV's k1, k2, k3, p1, p2), global shutter.
+"""Frame camera, global shutter: pinhole with Brown-Conrady distortion (OpenCV's k1, k2, k3, p1, p2), or
+an equidistant fisheye (OpenCV's fisheye model, k1..k4).
 
 Conventions
 -----------
@@ -14,6 +15,9 @@ Conventions
       u = fx xd + cx,  v = fy yd + cy
 
   which is OpenCV's model and COLMAP's ``FULL_OPENCV`` with k4 = k5 = k6 = 0.
+* Fisheye (``projection="fisheye"``): the ray's angle from the axis theta = atan(r) is mapped to
+  ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)`` and
+  ``(xd, yd) = (theta_d / r) (x, y)``: OpenCV's ``cv2.fisheye`` and COLMAP's ``OPENCV_FISHEYE``.
 """
 
 from __future__ import annotations
@@ -38,6 +42,15 @@ class CameraOptions:
     p2: float = -0.00041
     make: str = "GeorefSim"
     model: str = "SimCam-GS"
+    projection: str = "perspective"  # or "fisheye" (then k1..k4 are the fisheye's, p1 = p2 = 0)
+    k4: float = 0.0
+
+    @classmethod
+    def fisheye(cls) -> "CameraOptions":
+        """A wide-angle action camera: equidistant fisheye, about 90 degrees across the image width
+        (f = 1000 px at 1600 px wide; 1.8 times the default camera's footprint)."""
+        return cls(focal_mm=4.4, principal_offset=(0.0030, -0.0025), k1=0.021, k2=-0.0062, k3=0.0011, p1=0.0, p2=0.0,
+                   model="SimCam-FE", projection="fisheye", k4=-0.0002)
 
     def scaled(self, width_px: int, height_px: int) -> "CameraOptions":
         """The same optics (field of view, distortion) on a sensor with another pixel count."""
@@ -62,6 +75,12 @@ class CameraModel:
     pixel_size_mm: float = 0.0044
     make: str = "GeorefSim"
     model: str = "SimCam-GS"
+    projection: str = "perspective"
+    k4: float = 0.0
+
+    def __post_init__(self):
+        if self.projection not in ("perspective", "fisheye"):
+            raise ValueError(f"camera projection {self.projection!r}: perspective or fisheye")
 
     @classmethod
     def from_options(cls, o: CameraOptions) -> "CameraModel":
@@ -70,7 +89,12 @@ class CameraModel:
         return cls(width=o.width_px, height=o.height_px, fx=f, fy=f,
                    cx=(o.width_px - 1) / 2.0 + o.principal_offset[0] * o.width_px,
                    cy=(o.height_px - 1) / 2.0 + o.principal_offset[1] * o.width_px,
-                   k1=o.k1, k2=o.k2, k3=o.k3, p1=o.p1, p2=o.p2, pixel_size_mm=pix, make=o.make, model=o.model)
+                   k1=o.k1, k2=o.k2, k3=o.k3, p1=o.p1, p2=o.p2, pixel_size_mm=pix, make=o.make, model=o.model,
+                   projection=o.projection, k4=o.k4)
+
+    @property
+    def fisheye(self) -> bool:
+        return self.projection == "fisheye"
 
     # ---- derived quantities ------------------------------------------------------------------
     @property
@@ -92,6 +116,8 @@ class CameraModel:
 
     def colmap_params(self) -> tuple[str, list[float]]:
         """COLMAP camera model name and parameter list (COLMAP pixel convention)."""
+        if self.fisheye:
+            return "OPENCV_FISHEYE", [self.fx, self.fy, self.cx + 0.5, self.cy + 0.5, self.k1, self.k2, self.k3, self.k4]
         return "FULL_OPENCV", [self.fx, self.fy, self.cx + 0.5, self.cy + 0.5, self.k1, self.k2, self.p1, self.p2,
                                self.k3, 0.0, 0.0, 0.0]
 
@@ -102,7 +128,9 @@ class CameraModel:
         d.update({
             "pixel_convention": "OpenCV: centre of the top-left pixel is (0, 0); COLMAP adds 0.5",
             "camera_frame": "x right, y down (image), z forward along the optical axis",
-            "distortion_model": "OpenCV/Brown: radial k1,k2,k3 + tangential p1,p2 on normalised coordinates",
+            "distortion_model": ("OpenCV fisheye: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)"
+                                 if self.fisheye else
+                                 "OpenCV/Brown: radial k1,k2,k3 + tangential p1,p2 on normalised coordinates"),
             "focal_mm": self.focal_mm, "sensor_width_mm": w, "sensor_height_mm": h,
             "focal_35mm_equiv": self.focal_35mm_equiv, "K": self.K.tolist(),
             "colmap_model": model, "colmap_params": params,
@@ -113,16 +141,36 @@ class CameraModel:
     def distort_normalized(self, x, y):
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
+        if self.fisheye:
+            r = np.hypot(x, y)
+            theta = np.arctan(r)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scale = np.where(r > 1e-12, self._theta_d(theta) / r, 1.0)
+            return x * scale, y * scale
         r2 = x * x + y * y
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
         xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
         yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
         return xd, yd
 
+    def _theta_d(self, theta):
+        t2 = theta * theta
+        return theta * (1.0 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4))))
+
     def undistort_normalized(self, xd, yd, iterations: int = 8):
         """Inverse of :meth:`distort_normalized` by Newton's method (to ~1e-12 in normalised units)."""
         xd = np.asarray(xd, dtype=float)
         yd = np.asarray(yd, dtype=float)
+        if self.fisheye:
+            theta_d = np.hypot(xd, yd)
+            theta = theta_d.copy()
+            for _ in range(2 * iterations):
+                t2 = theta * theta
+                d = 1.0 + t2 * (3 * self.k1 + t2 * (5 * self.k2 + t2 * (7 * self.k3 + 9 * t2 * self.k4)))
+                theta = theta - (self._theta_d(theta) - theta_d) / d
+            with np.errstate(divide="ignore", invalid="ignore"):
+                scale = np.where(theta_d > 1e-12, np.tan(theta) / theta_d, 1.0)
+            return xd * scale, yd * scale
         x, y = xd.copy(), yd.copy()
         k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
         for _ in range(iterations):
@@ -179,5 +227,12 @@ class CameraModel:
         return self.pixel_to_ray(u, v)
 
     def footprint_m(self, distance_m: float) -> tuple[float, float]:
-        """Ground footprint (width, height) of a nadir image at a distance, ignoring distortion."""
+        """Ground footprint (width, height) of a nadir image at a distance: for the perspective camera
+        ignoring distortion; for the fisheye between the undistorted edge midpoints (the pinhole size
+        of a fisheye understates its coverage several times)."""
+        if self.fisheye:
+            cu, cv = (self.width - 1) / 2.0, (self.height - 1) / 2.0
+            x, _ = self.undistort_normalized((np.array([0.0, self.width - 1.0]) - self.cx) / self.fx, (cv - self.cy) / self.fy)
+            _, y = self.undistort_normalized((cu - self.cx) / self.fx, (np.array([0.0, self.height - 1.0]) - self.cy) / self.fy)
+            return float(distance_m * (x[1] - x[0])), float(distance_m * (y[1] - y[0]))
         return distance_m * self.width / self.fx, distance_m * self.height / self.fy

@@ -45,7 +45,7 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
 @dataclass
 class GeorefOptions:
     mode: str = "joint"                       # joint (c) | gcp (a) | similarity (b)
-    camera_model: str = "brown"               # radial | brown | fisheye (fisheye: SfM only)
+    camera_model: str = "brown"               # radial | brown | fisheye (see adjustment/camera_model.py)
     lever_arm_cam_m: tuple[float, float, float] | None = None  # known lever arm (needed by 'similarity')
     estimate_lever_arm: bool | None = None    # default: True unless a lever arm is given without a sigma
     lever_arm_sigma_m: float | None = None    # a given lever arm is a weighted prior with this sigma (else fixed)
@@ -107,7 +107,8 @@ def load_calibration(path) -> dict:
     sig = lad.get("lever_arm_sigma_m")
     return {"lever_arm_cam_m": tuple(float(v) for v in lad["lever_arm_cam_m"]),
             "lever_arm_sigma_m": float(max(max(sig), 0.002)) if sig else None,
-            "delay_s": float(lad["delay_s"]), "intrinsics": tuple(intr), "source": str(summary_path)}
+            "delay_s": float(lad["delay_s"]), "intrinsics": tuple(intr), "camera_model": s.get("camera_model", "brown"),
+            "source": str(summary_path)}
 
 
 def _image_names(image_dir: Path) -> list[str]:
@@ -458,9 +459,11 @@ class _Adjusted:
     used_measurements: dict          # point -> list of (image, uv)
     stats: dict
     rerun: object = None             # callable(control_names) -> (names, R, C, intr) for leave-one-out
+    fisheye: bool = False            # projection of ``intrinsics`` (camera_model)
 
 
-def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr):
+def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr,
+                        fisheye: bool = False):
     from ..photo.align import fit_similarity
 
     by_name = rec.image_by_name()
@@ -485,10 +488,11 @@ def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, contr
         if len(ms) < 2:
             continue
         uv, cams = np.array([m.uv_px for m in ms]), np.array([im_idx[m.image] for m in ms])
-        keep, _ = find_blunders(pname, [m.image for m in ms], uv, cams, R_model, C_model, intr)  # (reported later)
+        keep, _ = find_blunders(pname, [m.image for m in ms], uv, cams, R_model, C_model, intr,
+                                fisheye=fisheye)  # (reported later)
         if len(keep) < 2:
             continue
-        t = triangulate(uv[keep], cams[keep], R_model, C_model, intr)
+        t = triangulate(uv[keep], cams[keep], R_model, C_model, intr, fisheye=fisheye)
         src.append(t.xyz_enu_m)
         dst.append(control_enu[pname])
     if len(src) < 3:
@@ -518,12 +522,15 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
 
 def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list) -> _Adjusted:
     cam = next(iter(rec.cameras.values()))
-    if opts.camera_model == "fisheye":
-        raise ProcessingError("the adjustment supports the radial and brown camera models; fisheye is SfM-only for now")
+    fisheye = cm.is_fisheye(opts.camera_model)
+    if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
+        raise ProcessingError(f"the structure from motion used the COLMAP camera {cam.model}, which does not match the "
+                              f"camera model {opts.camera_model!r}; re-run with --rerun")
     intr0 = cm.from_colmap(cam.model, cam.params)
     if opts.fixed_intrinsics is not None:
         if len(opts.fixed_intrinsics) != 8:
-            raise ProcessingError("fixed intrinsics need 8 values: f, cx, cy, k1, k2, k3, p1, p2 (OpenCV pixels)")
+            raise ProcessingError(f"fixed intrinsics need 8 values: {', '.join(cm.param_names(fisheye)[:7 if fisheye else 8])}"
+                                  f"{', 0' if fisheye else ''} (OpenCV pixels)")
         intr0 = np.asarray(opts.fixed_intrinsics, float)
     images = sorted(rec.images.values(), key=lambda im: im.name)
     names = [im.name for im in images]
@@ -533,7 +540,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     ctl_points = list(control.points.values())
     control_enu = dict(zip([p.name for p in ctl_points], points_to_enu(ctl_points, frame))) if ctl_points else {}
 
-    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr0)
+    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr0, fisheye)
     R0 = np.array([sim.R @ im.R_cam_from_world.T for im in images])
     C0 = np.array([sim.apply(im.centre[None])[0] for im in images])
 
@@ -544,7 +551,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if not ms:
             continue
         keep, reps = find_blunders(pname, [m.image for m in ms], np.array([m.uv_px for m in ms]),
-                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr0, opts.blunder_threshold_px)
+                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr0, opts.blunder_threshold_px,
+                                   fisheye=fisheye)
         for r in reps:
             blunders.append({"point": r.point, "image": r.image, "residual_px": round(r.residual_px, 2), "message": r.message})
             warnings.append(r.message)
@@ -573,7 +581,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         g_xyz, g_cam, g_pt, g_uv = [], [], [], []
         for k, n in enumerate(gcp_names):
             ms = used[n]
-            t = triangulate(np.array([m[1] for m in ms]), np.array([im_idx[m[0]] for m in ms]), Rs, Cs, Is)
+            t = triangulate(np.array([m[1] for m in ms]), np.array([im_idx[m[0]] for m in ms]), Rs, Cs, Is, fisheye=fisheye)
             g_xyz.append(t.xyz_enu_m)
             for img, uv in ms:
                 g_cam.append(im_idx[img])
@@ -595,7 +603,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                              lever_arm_cam_m=np.array(Ls, float), delay_s=float(Ds),
                              control_point=np.arange(n_tie, n_tie + len(gcp_names), dtype=int),
                              control_enu_m=np.array([control_enu[n] for n in gcp_names]).reshape(-1, 3),
-                             control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]))
+                             control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]),
+                             fisheye=fisheye)
         if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
             prob.lever_arm_prior_cam_m = lever0.copy()
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
@@ -638,7 +647,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                       "tie_observation_outliers": int(res.obs_outlier.sum()), "gnss_outliers": int(res.gnss_outlier.sum()),
                       "control_points_used": gcps})
         intr = prob.intrinsics
-        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.PARAM_NAMES}
+        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.param_names(fisheye)}
         R, C = prob.R_cam_to_enu, prob.centre_enu_m
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
@@ -670,7 +679,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         stats.update({"rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "lever_delay_sigma0": fit.sigma0, "control_points_used": gcps,
                       "gnss_outliers": int(fit.outlier.sum())})
-        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.PARAM_NAMES}
+        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.param_names(fisheye)}
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
     else:  # similarity
@@ -720,7 +729,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                      intrinsics_sigma=isig, lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
                      delay_s=float(delay), delay_sigma_s=delay_sigma, correlations=correlations, points_enu_m=P,
                      points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
-                     rerun=rerun)
+                     rerun=rerun, fisheye=fisheye)
 
 
 # ------------------------------------------------------------------------------------------- outputs
@@ -755,7 +764,7 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
         ms = [m for m in adj.used_measurements.get(name, []) if m[0] in idx]
         if len(ms) < 2:
             continue
-        t = triangulate(np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms]), R, C, intr)
+        t = triangulate(np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms]), R, C, intr, fisheye=adj.fisheye)
         table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, t.cov_enu_m2, frame, control, len(ms)))
     return table
 
@@ -765,7 +774,7 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
     from ..photo.oriented_images import OrientedCamera, OrientedImage, OrientedImages
 
     # oriented images
-    model, params = cm.to_colmap_opencv(adj.intrinsics)
+    model, params = cm.to_colmap(adj.intrinsics, adj.fisheye)
     w, h = next(iter(rec.cameras.values())).width, next(iter(rec.cameras.values())).height
     oi = OrientedImages(frame=frame, image_dir=(survey_dir / "images").resolve(),
                         cameras={1: OrientedCamera(model, w, h, params)},
@@ -825,9 +834,12 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
         "gnss_source": gnss.source if gnss is not None else None,
         "sfm": {"mean_reprojection_error_px": rec.mean_reprojection_error_px, "points": int(len(rec.points_xyz))},
         "adjustment": adj.stats,
-        "intrinsics": {"names": list(cm.PARAM_NAMES), "values": adj.intrinsics.round(7).tolist(),
+        "intrinsics": {"names": list(cm.param_names(adj.fisheye)), "values": adj.intrinsics.round(7).tolist(),
                        "sigma": {k: float(v) for k, v in adj.intrinsics_sigma.items()},
-                       "convention": "OpenCV pixels (top-left pixel centre = 0, 0); distortion on normalised coordinates"},
+                       "projection": "fisheye" if adj.fisheye else "perspective",
+                       "convention": "OpenCV pixels (top-left pixel centre = 0, 0); " + (
+                           "OpenCV fisheye: radius f theta (1 + k1 theta^2 + ... + k4 theta^8)" if adj.fisheye else
+                           "Brown distortion on normalised coordinates")},
         "lever_arm_delay": lever,
         "check_points": checks.to_dict(), "control_points_fit": fit_table.to_dict(),
         "control_leave_one_out": loo.to_dict() if loo.rows else None,

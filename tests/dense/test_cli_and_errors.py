@@ -79,9 +79,9 @@ def test_bad_oriented_files_are_named(copied_survey):
     oi, tmp = copied_survey
     path = tmp / "run" / "oriented_images.json"
     cam = oi.cameras[1]
-    cam.model = "OPENCV_FISHEYE"
+    cam.model = "THIN_PRISM_FISHEYE"
     oi.write(path)
-    with pytest.raises(InputFileError, match="oriented_images.json: camera model OPENCV_FISHEYE"):
+    with pytest.raises(InputFileError, match="oriented_images.json: camera model THIN_PRISM_FISHEYE"):
         run_dense(tmp / "run")
     cam.model = "FULL_OPENCV"
     oi.images = oi.images[:1]
