@@ -375,6 +375,9 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         "ortho": ortho_info,
         # read by the volume uncertainty model (docs/volumes.md)
         "dsm_vertical_rmse_m": round(precision_m, 4) if precision_m is not None else None,
+        # how far a height edge (a stockpile's toe) spreads in the DSM: half the matching window on the ground
+        # plus one cell (cell averaging, bilinear sampling); volume outlines sample the ground beyond it
+        "dsm_smoothing_radius_m": round(0.5 * max(opts.stereo.block_size, opts.stereo.refine_window) * wgsd + res, 4),
         "dsm_vertical_rmse_source": "internal estimate: agreement of the views fused into each point (random "
                                     "part only; the georeferencing bias is not in it)",
         **({"check_height_bias_m": round(check_bias, 4)} if check_bias is not None else {}),

@@ -59,14 +59,18 @@ class NoiseModel:
     height_bias_m: float = DEFAULT_HEIGHT_BIAS_M
     correlation_length_m: float = DEFAULT_CORRELATION_LENGTH_M
     sources: dict = field(default_factory=dict)
+    # horizontal reach of the surface smoothing (matching window + cell; dense_summary.json): a toe raises
+    # the DSM this far out, so outline bases sample the ground beyond it. None: unknown (1.5 cells used)
+    smoothing_radius_m: float | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> "NoiseModel":
+        r = d.get("smoothing_radius_m")
         return cls(float(d["sigma_z_m"]), float(d["height_bias_m"]), float(d["correlation_length_m"]),
-                   dict(d.get("sources", {})))
+                   dict(d.get("sources", {})), float(r) if r is not None else None)
 
     @classmethod
     def for_dsm(cls, dsm_path, sigma_z_m: float | None = None, height_bias_m: float | None = None,
@@ -101,6 +105,10 @@ class NoiseModel:
                  "correlation_length_m")
         if s < 0 or L < 0:
             raise ValueError("DSM sigma and correlation length must be >= 0")
+        r = summary.get("dsm_smoothing_radius_m") if isinstance(summary, dict) else None
+        if isinstance(r, (int, float)) and math.isfinite(r) and r >= 0:
+            src["smoothing_radius_m"] = f"{sp.name}: dsm_smoothing_radius_m"
+            return cls(s, b, L, src, float(r))
         return cls(s, b, L, src)
 
 

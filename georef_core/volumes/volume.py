@@ -38,7 +38,7 @@ class VolumeOptions:
     percentile: float | None = None  # lowest/highest: percentile of the outline heights (default 2 / 98)
     smoothing_m: float = 1.0  # running median along the outline before the percentile (lowest/highest)
     outline_spacing_m: float | None = None  # default: one cell
-    outline_offset_m: float | None = None  # default: 1.5 cells outward
+    outline_offset_m: float | None = None  # default: 1.5 cells outward, or the DSM smoothing radius when larger
     max_fill_fraction: float = 0.05  # nodata inside the polygon filled up to this fraction of its area
     base_model_spread: bool = True  # compute mean/plane/TIN nets for the base-model uncertainty term
     surface_sigma_m: float | None = None  # noise of an imported base surface (default: its dense_summary.json or 0)
@@ -288,7 +288,8 @@ def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | Non
     poly = polygon.to_crs(info.crs)
     check_inside(info, poly)
     cell = info.cell_size_m
-    offset = 1.5 * cell if o.outline_offset_m is None else o.outline_offset_m
+    # the base is sampled outside the outline, beyond the DSM's smoothing of the toe (1.5 cells at least)
+    offset = max(1.5 * cell, model.smoothing_radius_m or 0.0) if o.outline_offset_m is None else o.outline_offset_m
     progress("read", 0, 4)
     w = _DsmWindow(info, poly, offset + 2 * cell)
     a_cell = w.window.cell_area_m2

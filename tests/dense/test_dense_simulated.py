@@ -30,6 +30,9 @@ def test_dsm_against_truth(dense_run, dense_sim, work_area_bounds):
     # the internal precision estimate written for the volume uncertainty is of the right size
     est = summary["dsm_vertical_rmse_m"]
     assert 0.5 * m["rmse_m"] < est < 3.0 * m["rmse_m"], (est, m["rmse_m"])  # measured 1.3-1.4 x
+    # the reach of the matching window (+ one cell) that volume outlines sample beyond
+    r = summary["dsm_smoothing_radius_m"]
+    assert summary["dsm_resolution_m"] < r < 0.5 * 7 * summary["matching_gsd_m"] + 2 * summary["dsm_resolution_m"], r
 
 
 def test_dsm_cells_are_robust_medians(dense_run, dense_sim):
