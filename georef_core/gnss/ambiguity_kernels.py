@@ -135,12 +135,13 @@ def try_fix(x, p, active, pos_in, pairs, threshold, min_success_rate):
 
 
 @njit(cache=True)
-def resolve(x, p, active, pos_in, pairs, pair_el, threshold, partial, max_drop, min_ambiguities,
+def resolve(x, p, active, pos_in, pairs, pair_el, pair_sat, threshold, partial, max_drop, min_ambiguities,
             min_success_rate):
     """MLAMBDA on the DD ambiguities `pairs`. When the full set fails: drop at once those far less certain
     than the rest (float variance above 4x the median: newly tracked or recently slipped signals), then the
     lowest satellites one at a time (multipath, residual atmosphere), up to max_drop; after a failed search
-    whose two best candidates differ in at most 3 DDs, those undecided DDs are dropped next. A fix needs the
+    whose two best candidates differ in at most 3 DDs, the satellites of those undecided DDs (every band
+    of them: ``pair_sat`` names each DD's satellite) are dropped next. A fix needs the
     ratio test and, when min_success_rate > 0, a bootstrapped success rate at least that high.
     Returns (fixed, ratio, x_fixed, position covariance, fixed pairs, their integers)."""
     n = pairs.shape[0]
@@ -200,6 +201,9 @@ def resolve(x, p, active, pos_in, pairs, pair_el, threshold, partial, max_drop, 
         n_undecided = undecided.sum()
         if partial and 0 < n_undecided <= MAX_UNDECIDED and n_try <= max_drop + 2:
             pending = kept.copy()
-            pending[np.nonzero(kept)[0][undecided]] = False
+            for k in np.nonzero(kept)[0][undecided]:
+                for m in range(n):
+                    if pair_sat[m] == pair_sat[k]:
+                        pending[m] = False
             have_pending = True
     return False, best_ratio, x, np.zeros((3, 3)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64)

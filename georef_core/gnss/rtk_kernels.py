@@ -507,7 +507,8 @@ def resolve_epoch(d, c, e, x, p, used, obs_ok, lock):
     # searching subsets of an unconverged float solution finds wrong integers that pass the ratio test
     # (simulated L1 starts: float sigma ~1 m, 7 of 8 ambiguities, ratio 4.7, 2.2 m off)
     partial = c.partial_ar and np.sqrt(p[0, 0] + p[1, 1] + p[2, 2]) <= c.partial_ar_max_float_sigma_m
-    return resolve(x, p, active, pos_in, pairs, pair_el, c.ratio_threshold, partial, c.partial_ar_max_drop,
+    pair_sat = (pairs[:, 0] - c.n_kin) // n_f
+    return resolve(x, p, active, pos_in, pairs, pair_el, pair_sat, c.ratio_threshold, partial, c.partial_ar_max_drop,
                    c.min_ambiguities_to_fix, c.min_success_rate)
 
 

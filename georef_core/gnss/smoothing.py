@@ -8,6 +8,21 @@ import numpy as np
 from .rtk_filter import STATUS_FIX, STATUS_FLOAT, STATUS_NONE, FilterOutput
 
 FIX_CONFLICT_M = 0.05   # two fixed solutions further apart than this disagree on an integer
+# in a conflict, a pass fixed without a break for this many epochs, and this many times longer than the other,
+# is believed: a fresh filter's first fixes (the backward pass's start) are the usual wrong ones
+TRUSTED_RUN_EPOCHS = 10
+TRUSTED_RUN_FACTOR = 3
+
+
+def _fixed_run_lengths(status: np.ndarray, backward: bool) -> np.ndarray:
+    """Epochs each epoch's fix has lasted without a break, counted in the pass's own direction."""
+    run = np.zeros(len(status), dtype=np.int64)
+    order = range(len(status) - 1, -1, -1) if backward else range(len(status))
+    prev = 0
+    for e in order:
+        prev = prev + 1 if status[e] == STATUS_FIX else 0
+        run[e] = prev
+    return run
 
 
 def _rank(status: np.ndarray) -> np.ndarray:
@@ -17,8 +32,10 @@ def _rank(status: np.ndarray) -> np.ndarray:
 
 def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndarray]:
     """Per epoch: the better-quality pass where qualities differ; the covariance-weighted mean of two float
-    passes; the plain mean (covariance not reduced) of two fixed passes. Two fixed passes that disagree by more than 5 cm are downgraded to float (one of them
-    holds a wrong integer). Returns the combined output and a per-epoch conflict flag."""
+    passes; the plain mean (covariance not reduced) of two fixed passes. Two fixed passes that disagree by
+    more than 5 cm hold a wrong integer between them: the one fixed without a break for at least 10 epochs
+    and 3 times longer than the other is kept, else the epoch is downgraded to float. Returns the combined
+    output and a per-epoch conflict flag (set whichever way the conflict went)."""
     n = len(fwd.status)
     out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
                        fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy())
@@ -28,6 +45,7 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
     for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb"):
         getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
     both = (rf == rb) & (fwd.status != STATUS_NONE)
+    run_f, run_b = _fixed_run_lengths(fwd.status, False), _fixed_run_lengths(bwd.status, True)
     for e in np.nonzero(both)[0]:
         qf, qb = fwd.covariance_ecef_m2[e], bwd.covariance_ecef_m2[e]
         xf, xb = fwd.position_ecef_m[e], bwd.position_ecef_m[e]
@@ -48,6 +66,14 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
         out.n_sats[e] = max(fwd.n_sats[e], bwd.n_sats[e])
         if fwd.status[e] == STATUS_FIX and np.linalg.norm(xf - xb) > FIX_CONFLICT_M:
             conflict[e] = True
-            out.status[e] = STATUS_FLOAT
-            out.covariance_ecef_m2[e] = q + np.outer(xf - xb, xf - xb) / 4.0
+            longer, shorter = max(run_f[e], run_b[e]), min(run_f[e], run_b[e])
+            if longer >= TRUSTED_RUN_EPOCHS and longer >= TRUSTED_RUN_FACTOR * shorter:
+                src = fwd if run_f[e] > run_b[e] else bwd
+                out.position_ecef_m[e] = src.position_ecef_m[e]
+                out.covariance_ecef_m2[e] = src.covariance_ecef_m2[e]
+                out.ratio[e], out.n_sats[e] = src.ratio[e], src.n_sats[e]
+                out.residuals_m[e], out.n_fixed_amb[e] = src.residuals_m[e], src.n_fixed_amb[e]
+            else:
+                out.status[e] = STATUS_FLOAT
+                out.covariance_ecef_m2[e] = q + np.outer(xf - xb, xf - xb) / 4.0
     return out, conflict

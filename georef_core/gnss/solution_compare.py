@@ -21,6 +21,7 @@ class Comparison:
     median_vertical_m: float
     max_3d_m: float
     n_beyond_5cm: int
+    beyond_5cm_time_s: tuple = ()  # the reference's times of those epochs
 
     def as_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
@@ -46,6 +47,7 @@ def compare_pos(ours: PosFile, ref: PosFile, time_tolerance_s: float = 0.02) -> 
     both = ours_fix & ref_fix
     med_h = med_v = max3 = float("nan")
     n_bad = 0
+    bad_t: tuple = ()
     if both.any():
         a = _ecef(ours)[best[both]]
         b = _ecef(ref)[both]
@@ -55,5 +57,14 @@ def compare_pos(ours: PosFile, ref: PosFile, time_tolerance_s: float = 0.02) -> 
         d3 = np.linalg.norm(enu, axis=1)
         med_h, med_v, max3 = float(np.median(h)), float(np.median(np.abs(enu[:, 2]))), float(d3.max())
         n_bad = int(np.sum(d3 > 0.05))
+        bad_t = tuple(float(t) for t in ref.time_s[both][d3 > 0.05])
     return Comparison(int(matched.sum()), float(ours_fix.mean()) if n_ref else 0.0,
-                      float(ref_fix.mean()) if n_ref else 0.0, int(both.sum()), med_h, med_v, max3, n_bad)
+                      float(ref_fix.mean()) if n_ref else 0.0, int(both.sum()), med_h, med_v, max3, n_bad, bad_t)
+
+
+def fixed_position_at(sol: PosFile, time_s: float, time_tolerance_s: float = 0.02) -> np.ndarray | None:
+    """ECEF position of a fixed epoch of ``sol`` at ``time_s`` (None when absent or not fixed)."""
+    i = int(np.argmin(np.abs(sol.time_s - time_s))) if len(sol.time_s) else -1
+    if i < 0 or abs(sol.time_s[i] - time_s) > time_tolerance_s or sol.status[i] != 1:
+        return None
+    return geodetic_to_ecef_m(np.radians(sol.lat_deg[i]), np.radians(sol.lon_deg[i]), sol.height_m[i])
