@@ -120,46 +120,85 @@ def setup(data_dir: Path, pg: bool, full: bool) -> tuple[dict, list[str], str]:
     return env, urls, token
 
 
+class _Connection:
+    """A minimal HTTP/1.1 keep-alive client on asyncio streams (GET only; Content-Length or chunked
+    bodies). httpx spent most of a core on 200 requests/s and, sharing the two cores with the server,
+    its own event-loop delays dominated the latencies it measured."""
+
+    def __init__(self, port: int, token: str):
+        self.port, self.token = port, token
+        self.reader = self.writer = None
+
+    async def get(self, url: str, headers: dict) -> tuple[int, dict]:
+        if self.writer is None:
+            self.reader, self.writer = await asyncio.open_connection("127.0.0.1", self.port)
+        extra = "".join(f"{k}: {v}\r\n" for k, v in headers.items())
+        self.writer.write(f"GET {url} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {self.token}\r\n"
+                          f"{extra}\r\n".encode())
+        head = await self.reader.readuntil(b"\r\n\r\n")
+        lines = head.decode("latin-1").split("\r\n")
+        status = int(lines[0].split(" ", 2)[1])
+        hdr = {}
+        for line in lines[1:]:
+            if ":" in line:
+                k, v = line.split(":", 1)
+                hdr[k.strip().lower()] = v.strip()
+        if "content-length" in hdr:
+            await self.reader.readexactly(int(hdr["content-length"]))
+        elif hdr.get("transfer-encoding", "").lower() == "chunked":
+            while True:
+                size = int((await self.reader.readuntil(b"\r\n")).split(b";")[0], 16)
+                await self.reader.readexactly(size + 2)
+                if size == 0:
+                    break
+        if hdr.get("connection", "").lower() == "close":
+            self.close()
+        return status, hdr
+
+    def close(self):
+        if self.writer is not None:
+            self.writer.close()
+        self.reader = self.writer = None
+
+
 async def load(port: int, urls: list[str], token: str, readers: int, duration_s: float, rate: float,
                closed: bool, timeout_s: float) -> tuple[list[float], int, dict]:
-    import httpx
-
     lat: list[float] = []
     lost = 0
     codes: dict = {}
-    limits = httpx.Limits(max_connections=readers, max_keepalive_connections=readers)
-    async with httpx.AsyncClient(base_url=f"http://127.0.0.1:{port}", limits=limits, timeout=timeout_s,
-                                 headers={"Authorization": f"Bearer {token}"}) as client:
-        t_end = time.monotonic() + duration_s
-        etags: dict[str, str] = {}
+    t_end = time.monotonic() + duration_s
+    etags: dict[str, str] = {}
 
-        async def reader(i: int):
-            nonlocal lost
-            rnd = random.Random(i)
-            await asyncio.sleep(rnd.random() / max(rate, 1e-9) if not closed else 0)
-            while time.monotonic() < t_end:
-                url = rnd.choice(urls)
-                headers = {}
-                if rnd.random() < 0.3 and url in etags:       # some clients revalidate
-                    headers["If-None-Match"] = etags[url]
-                t0 = time.perf_counter()
-                try:
-                    r = await client.get(url, headers=headers)
-                    dt = time.perf_counter() - t0
-                    codes[r.status_code] = codes.get(r.status_code, 0) + 1
-                    if r.status_code in (200, 304):
-                        lat.append(dt)
-                        if "etag" in r.headers:
-                            etags[url] = r.headers["etag"]
-                    else:
-                        lost += 1
-                except (httpx.HTTPError, OSError):
+    async def reader(i: int):
+        nonlocal lost
+        rnd = random.Random(i)
+        conn = _Connection(port, token)
+        await asyncio.sleep(rnd.random() / max(rate, 1e-9) if not closed else 0)
+        while time.monotonic() < t_end:
+            url = rnd.choice(urls)
+            headers = {}
+            if rnd.random() < 0.3 and url in etags:       # some clients revalidate
+                headers["If-None-Match"] = etags[url]
+            t0 = time.perf_counter()
+            try:
+                status, hdr = await asyncio.wait_for(conn.get(url, headers), timeout_s)
+                dt = time.perf_counter() - t0
+                codes[status] = codes.get(status, 0) + 1
+                if status in (200, 304):
+                    lat.append(dt)
+                    if "etag" in hdr:
+                        etags[url] = hdr["etag"]
+                else:
                     lost += 1
-                    dt = time.perf_counter() - t0
-                if not closed:
-                    await asyncio.sleep(max(0.0, 1.0 / rate - dt) * (0.8 + 0.4 * rnd.random()))
+            except (OSError, asyncio.TimeoutError, asyncio.IncompleteReadError, ValueError):
+                lost += 1
+                conn.close()
+                dt = time.perf_counter() - t0
+            if not closed:
+                await asyncio.sleep(max(0.0, 1.0 / rate - dt) * (0.8 + 0.4 * rnd.random()))
+        conn.close()
 
-        await asyncio.gather(*(reader(i) for i in range(readers)))
+    await asyncio.gather(*(reader(i) for i in range(readers)))
     return lat, lost, codes
 
 
@@ -206,6 +245,18 @@ def main() -> int:
         print(f"uvicorn: {args.workers} worker(s); {len(urls)} result URLs; {os.cpu_count()} CPU cores (shared with "
               "this load generator)", flush=True)
         asyncio.run(load(port, urls, token, 20, 3, 2, False, args.timeout))       # warm-up (caches, pools)
+        # one request at a time: what each endpoint costs without queueing
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {token}"}) as cl:
+            seq = {}
+            for url in ["/api/v1/health"] + urls:
+                ts = []
+                for _ in range(40):
+                    t0 = time.perf_counter()
+                    cl.get(url)
+                    ts.append(time.perf_counter() - t0)
+                seq[url] = statistics.median(ts) * 1000
+            print("sequential median latency (ms): " + ", ".join(f"{u.split('/api/v1/')[-1][:48]} {v:.1f}"
+                                                                 for u, v in seq.items()), flush=True)
         lat, lost, codes = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, False,
                                             args.timeout))
         report(f"open loop, {args.readers} readers x {args.rate:g} req/s", lat, lost, codes, args.duration)
