@@ -526,7 +526,10 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
         raise ProcessingError(f"the structure from motion used the COLMAP camera {cam.model}, which does not match the "
                               f"camera model {opts.camera_model!r}; re-run with --rerun")
-    intr0 = cm.from_colmap(cam.model, cam.params)
+    # the SfM's own camera goes with its poses (the starting orientation and the blunder screening on it); a
+    # calibrated camera (fixed_intrinsics) is what the adjustment holds
+    intr_sfm = cm.from_colmap(cam.model, cam.params)
+    intr0 = intr_sfm
     if opts.fixed_intrinsics is not None:
         if len(opts.fixed_intrinsics) != 8:
             raise ProcessingError(f"fixed intrinsics need 8 values: {', '.join(cm.param_names(fisheye)[:7 if fisheye else 8])}"
@@ -540,7 +543,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     ctl_points = list(control.points.values())
     control_enu = dict(zip([p.name for p in ctl_points], points_to_enu(ctl_points, frame))) if ctl_points else {}
 
-    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr0, fisheye)
+    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr_sfm, fisheye)
     R0 = np.array([sim.R @ im.R_cam_from_world.T for im in images])
     C0 = np.array([sim.apply(im.centre[None])[0] for im in images])
 
@@ -551,7 +554,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if not ms:
             continue
         keep, reps = find_blunders(pname, [m.image for m in ms], np.array([m.uv_px for m in ms]),
-                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr0, opts.blunder_threshold_px,
+                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr_sfm, opts.blunder_threshold_px,
                                    fisheye=fisheye)
         for r in reps:
             blunders.append({"point": r.point, "image": r.image, "residual_px": round(r.residual_px, 2), "message": r.message})
