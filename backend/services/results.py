@@ -31,6 +31,7 @@ PATHS = {
     "residuals_csv": ("residuals.csv",),
     "lever_arm": ("lever_arm_delay.json",),
     "dsm": ("dense/dsm.tif",),
+    "dense_summary": ("dense/dense_summary.json",),
     "ortho": ("dense/ortho.tif",),
     "point_cloud": ("dense/points.laz", "dense/points.las"),
     "report": ("report/accuracy_report.pdf",),
@@ -397,6 +398,7 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
     run = require_run(ctx, run_id, "viewer")
     outline, base = validate_outline(outline), validate_base(base)
     o = _output(ctx, run, "dsm")
+    summary = _output(ctx, run, "dense_summary", required=False)
     site = ctx.db.get(Site, run.site_id)
     try:
         from georef_core.errors import GeorefError
@@ -406,10 +408,16 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
     tmp_root = ctx.settings.resolved_work_dir() / "tmp"
     tmp_root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=tmp_root) as tmp:
-        dsm = ctx.storage.local_path(blob_key(o.sha256))
-        if dsm is None:
-            dsm = Path(tmp) / "dsm.tif"
+        # the DSM with the dense step's summary beside it, as the volumes step sees it (its noise model and
+        # smoothing radius decide the uncertainty and where the outline base is sampled)
+        dsm = Path(tmp) / "dsm.tif"
+        local = ctx.storage.local_path(blob_key(o.sha256))
+        if local is not None:
+            dsm.symlink_to(local)
+        else:
             ctx.storage.fetch(blob_key(o.sha256), dsm)
+        if summary is not None:
+            ctx.storage.fetch(blob_key(summary.sha256), Path(tmp) / "dense_summary.json")
         poly = Path(tmp) / "outline.geojson"
         poly.write_text(json.dumps({"type": "FeatureCollection",
                                     "crs": {"type": "name", "properties": {"name": site.crs}},
