@@ -14,7 +14,7 @@ trigger delay, different seeds = different site, noise and flight):
 4. volumes of the simulated stockpiles on that DSM (base: best-fit plane of the outline)  ->  error
    against the analytic volume, and whether the stated uncertainty covers it.
 
-    .venv/bin/python bench/sim_end_to_end.py [--pairs 3:4 5:6] [--images 30] [--image-size 1024 768]
+    .venv/bin/python bench/sim_end_to_end.py [--pairs 3:4 5:6] [--images 30] [--cal-images 60] [--image-size 1024 768]
                                             [--receiver l1l2|l1] [--lens perspective|fisheye] [--work DIR]
 
 The last line printed summarises the volumes: RMS of error / stated sigma and how many piles the 95 %
