@@ -13,7 +13,7 @@ import { ResidualTable } from "../components/ResidualTable";
 import { ErrorBox, Figure, Loading, Note } from "../components/ui";
 import { useLoad, useStored } from "../hooks";
 import { DEFAULT_TOLERANCE, type Tolerance, type Unit, formatLength, residualStats, residualsCsv } from "../lib/residuals";
-import { href, navigate } from "../router";
+import { showRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
 export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
@@ -155,8 +155,7 @@ function PointRoles({ ctx, run, points, onChanged }: { ctx: SurveyContext; run: 
       for (const p of changed) await api.patch(`/surveys/${ctx.survey.id}/points/${encodeURIComponent(p.name)}`, { role: roles[p.name] });
       onChanged();
       const r = await api.post<RunDetail>(`/runs/${run.id}/rerun`, { from_step: "georef", settings: {} });
-      ctx.reloadRuns();
-      navigate(`${href("surveys", ctx.survey.id, "processing")}?run=${r.id}`);
+      showRun(ctx, r.id);
     } catch (e) {
       setError(e as Error);
     } finally {

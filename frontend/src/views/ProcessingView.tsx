@@ -10,8 +10,7 @@ import { ErrorBox, Loading, Note, ProgressBar, StatePill } from "../components/u
 import { useLoad } from "../hooks";
 import { EtaEstimator } from "../lib/eta";
 import { formatDateTime, formatDuration } from "../lib/format";
-import { href, navigate } from "../router";
-import { useStartRun } from "./startRun";
+import { runHref, showRun, useStartRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
 const STEP_TITLE: Record<string, string> = {
@@ -47,7 +46,7 @@ export function ProcessingView({ ctx, runId }: { ctx: SurveyContext; runId: stri
         <ul>
           {runs.map((r) => (
             <li key={r.id}>
-              <a href={`${href("surveys", ctx.survey.id, "processing")}?run=${r.id}`} aria-current={r.id === selected?.id ? "true" : undefined} class={r.id === selected?.id ? "active" : ""}>
+              <a href={runHref(ctx, r.id)} aria-current={r.id === selected?.id ? "true" : undefined} class={r.id === selected?.id ? "active" : ""}>
                 <span>Run {r.number}</span> <StatePill state={r.state} />
                 <span class="small muted block">{r.trigger}{r.from_step ? ` from ${r.from_step}` : ""} · {formatDateTime(r.created_at)}</span>
               </a>
@@ -303,8 +302,7 @@ function Rerun({ ctx, run }: { ctx: SurveyContext; run: RunDetail }) {
     setBusy(true);
     try {
       const r = await api.post<RunDetail>(`/runs/${run.id}/rerun`, { from_step: fromStep, settings: body });
-      ctx.reloadRuns();
-      navigate(`${href("surveys", ctx.survey.id, "processing")}?run=${r.id}`);
+      showRun(ctx, r.id);
     } catch (err) {
       setError(err as Error);
     } finally {

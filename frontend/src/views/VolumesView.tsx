@@ -18,7 +18,7 @@ import { formatArea, formatDate, formatVolume } from "../lib/format";
 import { type Ring, area, bboxOf, outlinesFromGeoJson, ringToGeoJson, selfIntersects } from "../lib/geom";
 import { type QuickBase, type QuickVolume, volumeUnderOutline } from "../lib/raster";
 import { residualStats } from "../lib/residuals";
-import { href, navigate } from "../router";
+import { showRun } from "./startRun";
 import { pileOutlines, useChange, useSiteRuns } from "./MapTab";
 import { autoRange, heightAt, useRunRaster } from "./rasterLayers";
 import type { SurveyContext } from "./SurveyView";
@@ -171,8 +171,7 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
     setError(null);
     try {
       const r = await api.post<RunDetail>(`/runs/${run.id}/rerun`, { from_step: "volumes", settings: {} });
-      ctx.reloadRuns();
-      navigate(`${href("surveys", ctx.survey.id, "processing")}?run=${r.id}`);
+      showRun(ctx, r.id);
     } catch (err) {
       setError(err as Error);
     } finally {
