@@ -7,6 +7,11 @@ broadcast clock error. Following the "simulated master observations" of Eling et
 residuals are interpolated linearly between the base epochs that bracket a rover epoch (base at 1 Hz,
 rover at 5-10 Hz, base gaps), or taken from the latest older base epoch when interpolation is off or
 a cycle slip lies between the two. The age of corrections is the distance to the nearest base epoch used.
+
+Receivers time-tag their epochs on their own clocks: a u-blox rover at x.987 s and its base at x.990 s
+observe "the same" epoch. A base epoch up to SYNC_TOLERANCE_S after a rover epoch is therefore used as
+that epoch's own (RTKLIB's DTTOL, 25 ms); before, a 1 ms tolerance sent such a rover epoch to the base
+epoch before, seconds older.
 """
 
 from __future__ import annotations
@@ -17,10 +22,14 @@ import numpy as np
 
 from .constants import CLIGHT_M_S
 from .corrections import ionosphere_delay_m, troposphere_delay_m
+from .cycle_slips import lli_slips
 from .frames import azimuth_elevation_batch
 from .navigation import NavigationData
 from .observations import ObservationSet
 from .satellite_geometry import ObservedSatellites, geometric_range_m
+
+
+SYNC_TOLERANCE_S = 0.025
 
 
 @dataclass
@@ -73,8 +82,8 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
     age = np.full(n_r, np.nan)
     if len(tb) == 0:
         return BaseResiduals(out_phase, out_code, out_el, slip_into, half, snr, age)
-    tol = 1e-3
-    # index of the latest base epoch at or before each rover epoch, and the next one
+    tol = SYNC_TOLERANCE_S
+    # index of the latest base epoch at or before each rover epoch (or within tol after it), and the next one
     i0 = np.searchsorted(tb, rover_time_s + tol, side="right") - 1
     i1 = i0 + 1
     have0 = i0 >= 0
@@ -83,7 +92,7 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
     dt0 = np.where(have0, rover_time_s - tb[i0c], np.inf)
     dt1 = np.where(have1, tb[i1c] - rover_time_s, np.inf)
     exact = have0 & (np.abs(dt0) <= tol)
-    lli_slip = (base.lli & 1).astype(bool)
+    lli_slip = lli_slips(base.lli, base.phase_cyc)   # lost lock, or a half-cycle flag change
     base_half = (base.lli & 2).astype(bool)
     for e in range(n_r):
         if not have0[e] or dt0[e] > max_age_s:
@@ -108,7 +117,7 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
             a = min(dt0[e], dt1[e])
         out_phase[e], out_code[e], out_el[e] = p, c, el[j0]
         half[e], snr[e] = base_half[j0], base.snr_dbhz[j0]
-        age[e] = a
+        age[e] = abs(a)
     # base slips: a slip flagged at base epoch j applies from the first rover epoch that uses epoch j
     first_use = np.searchsorted(rover_time_s, tb - tol, side="left")
     for j in np.nonzero(lli_slip.any(axis=(1, 2)))[0]:

@@ -9,9 +9,27 @@ import warnings
 import numpy as np
 
 
-def lli_slips(lli: np.ndarray) -> np.ndarray:
-    """LLI bit 0 = lost lock since the previous epoch."""
-    return (lli & 1).astype(bool)
+def lli_slips(lli: np.ndarray, phase_cyc: np.ndarray | None = None) -> np.ndarray:
+    """LLI bit 0 = lost lock since the previous epoch. With the phases (same shape), also every change of
+    bit 1 (half-cycle ambiguity unresolved) between consecutive observations of a signal: the receiver
+    shifts the phase by half a cycle when it resolves the ambiguity (u-blox), so either transition breaks
+    the phase arc (as in RTKLIB)."""
+    slips = (lli & 1).astype(bool)
+    if phase_cyc is not None:
+        slips |= half_cycle_transitions(lli, ~np.isnan(phase_cyc))
+    return slips
+
+
+def half_cycle_transitions(lli: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(E, ...) bool: LLI bit 1 differs from the signal's previous valid observation (axis 0)."""
+    half = (lli & 2).astype(bool)
+    flat_valid = valid.reshape(valid.shape[0], -1)
+    flat_half = half.reshape(half.shape[0], -1)
+    prev = _previous_valid_index(flat_valid)
+    out = np.zeros(flat_valid.shape, dtype=bool)
+    e_i, c_i = np.nonzero(flat_valid & (prev >= 0))
+    out[e_i, c_i] = flat_half[e_i, c_i] != flat_half[prev[e_i, c_i], c_i]
+    return out.reshape(valid.shape)
 
 
 def _previous_valid_index(valid: np.ndarray) -> np.ndarray:

@@ -180,7 +180,7 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
     usable = rsat.valid & (el >= np.radians(opts.elevation_mask_deg))
     if opts.snr_mask_dbhz > 0:
         usable &= ~(rover.snr_dbhz[..., 0] < opts.snr_mask_dbhz)
-    slips = lli_slips(rover.lli) | aligned.slip_into
+    slips = lli_slips(rover.lli, rover.phase_cyc) | aligned.slip_into
     slips |= geometry_free_slips(rover.phase_cyc, lam, opts.slip_gf_threshold_m)
     slips |= doppler_slips(rover.phase_cyc, rover.doppler_hz, rover.gps_time_s, opts.slip_doppler_threshold_cyc)
     slip_cum = np.zeros((len(rover.gps_time_s) + 1,) + slips.shape[1:], dtype=np.int32)

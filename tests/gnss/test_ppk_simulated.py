@@ -530,3 +530,24 @@ def test_f_single_passes_never_fix_wrong_integers(l1_gps_drone):
                   f"ratio {np.round(one.ratio[bad][:10], 1)}, reported 3D sigma {np.round(sig[:10] * 1e3, 1)} mm")
         n_bad += len(bad)
     assert n_bad == 0
+
+
+def test_phase_consistency_flags_exactly_the_ends_of_a_wrong_fix(drone_case):
+    """phase_consistency (used to judge fixes on the real u-blox walk, where no truth exists): the true
+    trajectory is consistent with the time-differenced carrier phase at every pair of epochs; a 5 cm offset
+    over 100 epochs (a wrong fix held for 20 s) is flagged at its two ends and nowhere else."""
+    from georef_core.gnss.phase_consistency import JUMP_THRESHOLD_M, epoch_pair_rms_m, inconsistent_fixed_epochs
+
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    data = prepare(sv.rover, sv.base, nav, opts)[0]
+    truth = sv.rover_truth.position_ecef_m
+    valid = np.ones(len(truth), dtype=bool)
+    rms = epoch_pair_rms_m(data, opts, truth, valid)
+    checked = np.isfinite(rms)
+    assert checked.sum() > 0.9 * len(truth)
+    print(f"true trajectory: TD-DD phase change RMS median {np.nanmedian(rms) * 1e3:.1f} mm, max {np.nanmax(rms) * 1e3:.1f} mm")
+    assert np.nanmax(rms) < 0.6 * JUMP_THRESHOLD_M     # phase noise: no false alarm
+    wrong = truth.copy()
+    wrong[300:400] += _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
+    np.testing.assert_array_equal(inconsistent_fixed_epochs(data, opts, wrong, valid), [300, 400])

@@ -1,0 +1,67 @@
+"""Epoch-to-epoch consistency of a solution with time-differenced double-differenced carrier phase.
+
+Between two consecutive epochs without a cycle slip the integer ambiguities cancel: the change of the
+DD phase residual computed at two positions depends on the positions only. For a correct pair of
+positions it is millimetres (phase noise and the change of multipath in one epoch); a wrong fix that
+begins or ends between the two epochs shows as centimetres. This needs no truth and no integers, so it
+judges any engine's fixed solution on the same data (RTKLIB's as well as ours) where no reference
+trajectory exists: the u-blox walk of shared/data/gnss (docs/gnss.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .rtk_filter import PreparedData, RtkFilter
+from .rtk_kernels import phase_residuals
+from .rtk_options import RtkOptions
+
+MIN_SIGNALS = 5            # satellites (signals) tracked without a slip over both epochs, references included
+JUMP_THRESHOLD_M = 0.02    # RMS change beyond which a pair of epochs is called inconsistent
+
+
+def epoch_pair_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray,
+                     valid: np.ndarray) -> np.ndarray:
+    """(E,) RMS (m) over the double differences of the change of DD phase residual between epoch e - 1 at
+    position_ecef_m[e - 1] and epoch e at position_ecef_m[e]; NaN where either epoch is not `valid` or
+    fewer than MIN_SIGNALS signals are tracked without a slip over both."""
+    flt = RtkFilter(data, opts)
+    d, cfg = flt.arrays(), flt.config()
+    n_e = len(d.time_s)
+    out = np.full(n_e, np.nan)
+    zero_amb = np.zeros(cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
+    for e in range(1, n_e):
+        if not (valid[e - 1] and valid[e]):
+            continue
+        ok = d.obs_ok[e - 1] & d.obs_ok[e] & (d.slip_cum[e + 1] == d.slip_cum[e])
+        if ok.sum() < MIN_SIGNALS:
+            continue
+        r0 = phase_residuals(d, cfg, e - 1, np.asarray(position_ecef_m[e - 1], float), zero_amb, ok)[0]
+        r1 = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
+        change = _rereferenced_change(r0, r1, d.sys_code)
+        if change.size:
+            out[e] = float(np.sqrt(np.mean(change**2)))
+    return out
+
+
+def _rereferenced_change(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarray) -> np.ndarray:
+    """Change of the DD residuals (S, F) from r0 to r1, both re-referenced, per system and band, to one
+    satellite present in both (the two epochs may have chosen different reference satellites)."""
+    parts = []
+    for b in range(r0.shape[1]):
+        for sys in np.unique(sys_code):
+            both = np.nonzero((sys_code == sys) & ~np.isnan(r0[:, b]) & ~np.isnan(r1[:, b]))[0]
+            if both.size < 2:
+                continue
+            k = both[0]
+            rest = both[1:]
+            parts.append((r1[rest, b] - r1[k, b]) - (r0[rest, b] - r0[k, b]))
+    return np.concatenate(parts) if parts else np.empty(0)
+
+
+def inconsistent_fixed_epochs(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray,
+                              fixed: np.ndarray, threshold_m: float = JUMP_THRESHOLD_M) -> np.ndarray:
+    """Indices e of consecutive fixed epochs (e - 1, e) whose position change disagrees with the
+    time-differenced carrier phase by more than threshold_m (RMS)."""
+    rms = epoch_pair_rms_m(data, opts, position_ecef_m, fixed)
+    return np.nonzero(rms > threshold_m)[0]
