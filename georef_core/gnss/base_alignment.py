@@ -5,8 +5,9 @@ satellite clock and atmosphere, all computed at the base's own epoch) change onl
 receiver clock (common to all satellites, it cancels in double differences), the atmosphere and the
 broadcast clock error. Following the "simulated master observations" of Eling et al. (2014), the
 residuals are interpolated linearly between the base epochs that bracket a rover epoch (base at 1 Hz,
-rover at 5-10 Hz, base gaps), or taken from the latest older base epoch when interpolation is off or
-a cycle slip lies between the two. The age of corrections is the distance to the nearest base epoch used.
+rover at 5-10 Hz, base gaps), or taken from the latest older base epoch when a cycle slip lies between
+the two. Without interpolation each rover epoch takes the nearest base epoch, older or newer (RTKLIB
+demo5's pairing). The age of corrections is the distance to the nearest base epoch used.
 
 Receivers time-tag their epochs on their own clocks: a u-blox rover at x.987 s and its base at x.990 s
 observe "the same" epoch. A base epoch up to SYNC_TOLERANCE_S after a rover epoch is therefore used as
@@ -94,6 +95,11 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
     exact = have0 & (np.abs(dt0) <= tol)
     lli_slip = lli_slips(base.lli, base.phase_cyc)   # lost lock, or a half-cycle flag change
     base_half = (base.lli & 2).astype(bool)
+    if not interpolate:
+        _nearest_epochs(tb, rover_time_s, phase_res, code_res, el, base, lli_slip, base_half, i0c, i1c, dt0, dt1,
+                        have0 & (dt0 <= max_age_s), have1 & (dt1 <= max_age_s),
+                        out_phase, out_code, out_el, slip_into, half, snr, age)
+        return BaseResiduals(out_phase, out_code, out_el, slip_into, half, snr, age)
     for e in range(n_r):
         if not have0[e] or dt0[e] > max_age_s:
             # no older epoch: allow a slightly newer base epoch (e.g. rover starts first)
@@ -106,7 +112,7 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
         j0 = i0c[e]
         p, c = phase_res[j0].copy(), code_res[j0].copy()
         a = dt0[e]
-        if not exact[e] and interpolate and have1[e] and (dt0[e] + dt1[e]) <= max_age_s:
+        if not exact[e] and have1[e] and (dt0[e] + dt1[e]) <= max_age_s:
             j1 = i1c[e]
             w = dt0[e] / (dt0[e] + dt1[e])
             p1, c1 = phase_res[j1], code_res[j1]
@@ -124,3 +130,24 @@ def align_base_to_rover(rover_time_s: np.ndarray, base: ObservationSet, phase_re
         if first_use[j] < n_r:
             slip_into[first_use[j]] |= lli_slip[j]
     return BaseResiduals(out_phase, out_code, out_el, slip_into, half, snr, age)
+
+
+def _nearest_epochs(tb, rover_time_s, phase_res, code_res, el, base, lli_slip, base_half, i0c, i1c, dt0, dt1, ok0, ok1,
+                    out_phase, out_code, out_el, slip_into, half, snr, age) -> None:
+    """Without interpolation each rover epoch takes the nearest base epoch, older or newer, within the maximum
+    age (as RTKLIB demo5 pairs them); a base slip applies from the first rover epoch whose base epoch is at
+    or after it."""
+    prev = -1
+    for e in range(len(rover_time_s)):
+        if ok0[e] and (not ok1[e] or dt0[e] <= dt1[e]):
+            j, a = i0c[e], dt0[e]
+        elif ok1[e]:
+            j, a = i1c[e], dt1[e]
+        else:
+            continue
+        out_phase[e], out_code[e], out_el[e] = phase_res[j], code_res[j], el[j]
+        half[e], snr[e] = base_half[j], base.snr_dbhz[j]
+        age[e] = abs(a)
+        if j > prev:
+            slip_into[e] |= lli_slip[prev + 1:j + 1].any(axis=0) if prev >= 0 else lli_slip[j]
+            prev = j

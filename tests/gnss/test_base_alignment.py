@@ -27,13 +27,31 @@ def test_base_epoch_a_few_ms_after_the_rover_epoch_is_that_epochs_own():
     rover_t = 100.987 + np.arange(8.0)
     base = _base(base_t)
     res = base.phase_cyc * 1.0
-    out = align_base_to_rover(rover_t, base, res, res.copy(), np.full((2, 2), 0.5), 30.0, interpolate=False)
-    np.testing.assert_allclose(out.age_s, [0.003, 0.997, 1.997, 2.997, 3.997, 4.997, 5.997, 0.003], atol=1e-9)
+    out = align_base_to_rover(rover_t, base, res, res.copy(), np.full((2, 2), 0.5), 30.0, interpolate=True)
+    np.testing.assert_allclose(out.age_s, [0.003, 0.997, 1.997, 2.997, 3.003, 2.003, 1.003, 0.003], atol=1e-9)
     np.testing.assert_array_equal(out.phase_res_m[7, :, 0], res[1, :, 0])   # not epoch 100.99, 7 s older
-    np.testing.assert_array_equal(out.phase_res_m[6, :, 0], res[0, :, 0])
-    # 30 ms after is not the same epoch any more: the older one is used
+    np.testing.assert_array_equal(out.phase_res_m[0, :, 0], res[0, :, 0])
+    # 30 ms after is not the same epoch any more
     late = align_base_to_rover(np.array([107.960]), base, res, res.copy(), np.full((2, 2), 0.5), 30.0, False)
-    assert SYNC_TOLERANCE_S < 0.03 and abs(late.age_s[0] - 6.97) < 1e-9
+    assert SYNC_TOLERANCE_S < 0.03 and abs(late.age_s[0] - 0.03) < 1e-9
+
+
+def test_without_interpolation_the_nearest_base_epoch_is_used_and_its_slips_follow():
+    # RTKLIB demo5's pairing: nearest base epoch, older or newer (rover 104.987 takes 106.99, 2.003 s ahead)
+    base_t = np.array([100.990, 106.990, 108.990])
+    lli = np.zeros((3, 2, 1), np.uint8)
+    lli[1, 0, 0] = 1                        # G01 lost lock between base epochs 100.99 and 106.99
+    base = _base(base_t, lli)
+    res = base.phase_cyc * 1.0
+    rover_t = 100.987 + np.arange(9.0)
+    out = align_base_to_rover(rover_t, base, res, res.copy(), np.full((3, 2), 0.5), 30.0, interpolate=False)
+    np.testing.assert_allclose(out.age_s, [0.003, 0.997, 1.997, 2.997, 2.003, 1.003, 0.003, 0.997, 0.003],
+                               atol=1e-9)
+    used = [0, 0, 0, 0, 1, 1, 1, 1, 2]
+    np.testing.assert_array_equal(out.phase_res_m[:, :, 0], res[used, :, 0])
+    # the slip applies from the first rover epoch that uses base epoch 106.99: 104.987, before it in time
+    np.testing.assert_array_equal(np.nonzero(out.slip_into[:, 0, 0])[0], [4])
+    assert not out.slip_into[:, 1, 0].any()
 
 
 def test_interpolation_between_base_epochs_and_slip_carried_to_first_use():
