@@ -86,6 +86,29 @@ def to_colmap(params: np.ndarray, fisheye: bool = False) -> tuple[str, list[floa
     return "FULL_OPENCV", [f, f, cx + 0.5, cy + 0.5, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]
 
 
+def brown_distortion(x, y, k1, k2, k3, p1, p2, rational=(0.0, 0.0, 0.0)):
+    """OpenCV's Brown distortion of normalised image coordinates x = X/Z, y = Y/Z: radial
+    (1 + k1 r2 + k2 r2^2 + k3 r2^3), divided by (1 + k4 r2 + k5 r2^2 + k6 r2^3) when the rational terms
+    (k4, k5, k6) are given, plus decentring p1, p2. Returns (xd, yd). The one copy of the polynomial used
+    by the adjustment and the dense step."""
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    k4, k5, k6 = rational
+    if np.any(k4) or np.any(k5) or np.any(k6):
+        radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    return xd, yd
+
+
+def fisheye_radius(theta, k1, k2, k3, k4):
+    """OpenCV's fisheye model: the angle theta (rad) of a ray from the optical axis to its normalised image
+    radius theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)."""
+    t2 = theta * theta
+    return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+
 def project_camera_points(p_cam: np.ndarray, params: np.ndarray, fisheye: bool = False) -> np.ndarray:
     """Camera-frame points (n, 3) -> pixels (n, 2). ``params`` (8,) or (n, 8)."""
     params = np.asarray(params, dtype=float)
@@ -94,21 +117,13 @@ def project_camera_points(p_cam: np.ndarray, params: np.ndarray, fisheye: bool =
     else:
         f, cx, cy, k1, k2, k3, p1, p2 = params.T
     if fisheye:
-        k4 = p1
         rho = np.hypot(p_cam[:, 0], p_cam[:, 1])
-        theta = np.arctan2(rho, p_cam[:, 2])
-        t2 = theta * theta
-        theta_d = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        theta_d = fisheye_radius(np.arctan2(rho, p_cam[:, 2]), k1, k2, k3, p1)   # k4 in the p1 slot
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where(rho > 1e-12, theta_d / rho, 1.0 / np.where(p_cam[:, 2] != 0, p_cam[:, 2], 1.0))
         return np.stack([f * p_cam[:, 0] * scale + cx, f * p_cam[:, 1] * scale + cy], axis=1)
     z = p_cam[:, 2]
-    x = p_cam[:, 0] / z
-    y = p_cam[:, 1] / z
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    xd, yd = brown_distortion(p_cam[:, 0] / z, p_cam[:, 1] / z, k1, k2, k3, p1, p2)
     return np.stack([f * xd + cx, f * yd + cy], axis=1)
 
 
@@ -125,7 +140,7 @@ def undistort_pixels(uv: np.ndarray, params: np.ndarray, iterations: int = 10, f
         theta = theta_d.copy()
         for _ in range(2 * iterations):
             t2 = theta * theta
-            g = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
+            g = fisheye_radius(theta, k1, k2, k3, k4) - theta_d
             dg = 1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + 9.0 * t2 * k4)))
             theta = theta - g / dg
         with np.errstate(divide="ignore", invalid="ignore"):

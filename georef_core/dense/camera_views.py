@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..adjustment.camera_model import brown_distortion, fisheye_radius
 from ..errors import InputFileError
 from ..photo.oriented_images import OrientedCamera, OrientedImages
 
@@ -134,18 +135,12 @@ class CameraView:
 
 
 def apply_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV (Brown + optional rational) distortion of normalised coordinates."""
+    """OpenCV (Brown + optional rational) distortion of normalised coordinates; `dist` in OpenCV's order
+    (k1, k2, p1, p2, k3, k4, k5, k6), shorter vectors padded with zeros."""
     d = np.zeros(8)
     d[: len(dist)] = dist
     k1, k2, p1, p2, k3, k4, k5, k6 = d
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    if k4 or k5 or k6:
-        radial = radial / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-    xy = x * y
-    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
-    return xd, yd
+    return brown_distortion(x, y, k1, k2, k3, p1, p2, (k4, k5, k6))
 
 
 def apply_fisheye_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -153,9 +148,7 @@ def apply_fisheye_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> 
     theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)."""
     k1, k2, k3, k4 = (list(dist) + [0.0] * 4)[:4]
     r = np.hypot(x, y)
-    theta = np.arctan(r)
-    t2 = theta * theta
-    theta_d = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    theta_d = fisheye_radius(np.arctan(r), k1, k2, k3, k4)
     with np.errstate(divide="ignore", invalid="ignore"):
         scale = np.where(r > 1e-12, theta_d / r, 1.0)
     return x * scale, y * scale
