@@ -41,10 +41,12 @@ from ..errors import InputFileError
 from .compressed_files import read_text
 from .gnss_time import (
     BDS_MINUS_GPS_S,
+    SECONDS_PER_WEEK,
     leap_seconds_at,
     resolve_tow_near,
 )
 from .navigation import GlonassEphemeris, KeplerEphemeris, NavigationData
+from .rinex_nav_kernels import fill_hard_fields, record_fields
 
 PathLike = str | Path
 
@@ -57,6 +59,7 @@ _UNKNOWN_TRANSMIT = 9.0e8
 # Free-format fallback: a RINEX navigation number always has a decimal point and an exponent.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.\d*|\.\d+)[EeDd][+-]?\d+")
 _DAY_S = 86400.0
+_HALF_WEEK_S = SECONDS_PER_WEEK / 2
 
 
 def read_rinex_nav(paths: PathLike | Sequence[PathLike]) -> NavigationData:
@@ -225,35 +228,49 @@ class _Record:
     data: list[float]         # RTKLIB-style data[] : 3 values of the epoch line, then 4 per line
 
 
-def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Record]:
+def _line_buffer(lines: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lines as one byte buffer (one byte per character) with each line's start and length."""
+    lens = np.fromiter(map(len, lines), dtype=np.int64, count=len(lines))
+    starts = np.zeros(len(lines), dtype=np.int64)
+    if len(lines) > 1:
+        np.cumsum(lens[:-1] + 1, out=starts[1:])
+    buf = np.frombuffer("\n".join(lines).encode("ascii", "replace"), dtype=np.uint8)
+    return buf, starts, lens
+
+
+def _record_spans(lines: list[str], header: _Header, path: Path, buf: np.ndarray, starts: np.ndarray,
+                  lens: np.ndarray) -> list[tuple[str, int, int]]:
+    """(system, index of the epoch line, number of lines) of every record of a used system, checked for
+    completeness (truncated or over-long records raise InputFileError). A record starts at a line with
+    a satellite id in its first column(s); the lines up to the next such line belong to it."""
     v3 = header.version >= 3.0
-    id_width = 1 if v3 else 2   # a record starts with the satellite id in its first column(s)
-    i = header.body_start
+    id_width = 1 if v3 else 2
     n = len(lines)
-    while i < n:
-        line = lines[i]
-        if not line.strip():
-            i += 1
-            continue
-        if not line[:id_width].strip():
+    b0 = header.body_start
+    safe = np.minimum(starts, max(len(buf) - 1, 0))
+    is_id = (lens >= 1) & (buf[safe] != 32) if len(buf) else np.zeros(n, bool)
+    if id_width == 2 and len(buf):
+        is_id |= (lens >= 2) & (buf[np.minimum(starts + 1, len(buf) - 1)] != 32)
+    ids = np.flatnonzero(is_id[b0:]) + b0
+    first_id = int(ids[0]) if len(ids) else n
+    for i in range(b0, first_id):
+        if lines[i].strip():
             raise InputFileError(path, "continuation line without a record (satellite/epoch) line", line=i + 1)
-        start = i
-        j = i + 1
-        while j < n and not lines[j][:id_width].strip():
-            j += 1
-        body = lines[start + 1:j]
-        i = j
+    bounds = ids.tolist() + [n]
+    spans = []
+    for k in range(len(bounds) - 1):
+        start, j = bounds[k], bounds[k + 1]
         if v3:
-            system = line[0].upper()
+            system = lines[start][0].upper()
             allowed = _RECORD_LINES_V3.get(system)
         else:
             system = header.system
             allowed = (8,) if system == "G" else (4,)
         if allowed is None:
             continue  # unknown system letter: skip the record (all its continuation lines)
-        while len(body) + 1 > max(allowed) and not body[-1].strip():
-            body.pop()  # trailing blank lines
-        nlines = len(body) + 1
+        nlines = j - start
+        while nlines > max(allowed) and not lines[start + nlines - 1].strip():
+            nlines -= 1  # trailing blank lines
         if nlines < min(allowed):
             raise InputFileError(path, f"truncated navigation record ({nlines} of {min(allowed)} lines)", line=start + 1)
         if nlines not in allowed:
@@ -261,10 +278,31 @@ def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Re
                                        f"{' or '.join(str(a) for a in allowed)}", line=start + 1)
         if system not in _KEPLER_SYSTEMS and system != "R":
             continue  # SBAS, NavIC: recognised but not used
-        yield _parse_record(line, body, start + 1, system, v3, path)
+        spans.append((system, start, nlines))
+    return spans
 
 
-def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: bool, path: Path) -> _Record:
+def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Record]:
+    """The records of the file, their numbers read by the compiled fixed-column reader where it reads
+    every field (rinex_nav_kernels.py), else line by line here."""
+    v3 = header.version >= 3.0
+    buf, starts, lens = _line_buffer(lines)
+    spans = _record_spans(lines, header, path, buf, starts, lens)
+    if not spans:
+        return
+    rec_line = np.array([sp[1] for sp in spans], dtype=np.int64)
+    rec_n = np.array([sp[2] for sp in spans], dtype=np.int64)
+    n_values = 3 + 4 * (int(rec_n.max()) - 1)
+    values, ok, hard, hard_end = record_fields(buf, starts, lens, rec_line, rec_n, 23 if v3 else 22, 4 if v3 else 3,
+                                              n_values)
+    fill_hard_fields(values, buf, hard, hard_end)
+    for k, (system, start, nlines) in enumerate(spans):
+        data = values[k, :3 + 4 * (nlines - 1)].tolist() if ok[k] else None
+        yield _parse_record(lines[start], lines[start + 1:start + nlines], start + 1, system, v3, path, data)
+
+
+def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: bool, path: Path,
+                  data: list[float] | None = None) -> _Record:
     if v3:
         prn_text, epoch_text, data_col = first[1:3], first[4:23], 23
     else:
@@ -277,7 +315,8 @@ def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: boo
         raise InputFileError(path, f"invalid satellite number '{first[:3].strip()}'", line=lineno)
     epoch = _parse_epoch(epoch_text, v3, path, lineno)
     cont_col = 4 if v3 else 3
-    data = _record_numbers(first, body, data_col, cont_col)
+    if data is None:
+        data = _record_numbers(first, body, data_col, cont_col)
     if data is None:  # line by line, with the free-format fallback and error reporting
         data = _numbers(first, data_col, _FIELD_WIDTH, 3, path, lineno)
         for k, line in enumerate(body):
@@ -353,8 +392,18 @@ def _kepler(rec: _Record) -> KeplerEphemeris:
     sys = rec.system
     t_epoch = _epoch_seconds(rec.epoch)  # GPST for G/J/E, BDT for C
     offset = -BDS_MINUS_GPS_S if sys == "C" else 0.0   # system time -> GPST
-    toe = resolve_tow_near(d[11], t_epoch) + offset
-    transmit = float("nan") if abs(d[27]) >= _UNKNOWN_TRANSMIT else resolve_tow_near(d[27], t_epoch) + offset
+    # gnss_time.resolve_tow_near, inlined (two calls per record were a tenth of the reading time)
+    week_start = math.floor(t_epoch / SECONDS_PER_WEEK) * SECONDS_PER_WEEK
+    toe = week_start + d[11]
+    if toe - t_epoch > _HALF_WEEK_S:
+        toe -= SECONDS_PER_WEEK
+    elif toe - t_epoch < -_HALF_WEEK_S:
+        toe += SECONDS_PER_WEEK
+    toe += offset
+    if abs(d[27]) >= _UNKNOWN_TRANSMIT:
+        transmit = float("nan")
+    else:
+        transmit = resolve_tow_near(d[27], t_epoch) + offset
     eph = KeplerEphemeris(
         sat_id=f"{sys}{rec.prn:02d}",
         toe_gps_s=toe,

@@ -464,3 +464,45 @@ def test_header_and_record_errors(tmp_path):
     with pytest.raises(InputFileError) as info:
         read_rinex_nav([good, tmp_path / "garbage.nav"])
     assert info.value.path == str(tmp_path / "garbage.nav")
+
+
+def test_compiled_field_reader_is_bit_identical_to_float():
+    """rinex_nav_kernels: every well-formed field equals Python's float() (hence strtod, RTKLIB) bit for bit,
+    whether read by the compiled fast path or left to float(); a malformed field hands the record back."""
+    from georef_core.gnss.rinex_nav_kernels import fill_hard_fields, record_fields
+
+    rng = np.random.default_rng(7)
+    mant = rng.uniform(-9.999, 9.999, 400)
+    expo = rng.integers(-30, 12, 400)
+    def fortran(v: float) -> str:             # 0.123456789012D-03: mantissa in [0.1, 1)
+        e = int(np.floor(np.log10(abs(v)))) + 1
+        return f"{v / 10.0**e:.12f}D{e:+03d}"
+
+    styles = [lambda v: f"{v:19.12E}".replace("E", "D"),                          # 1.234567890123D-04
+              lambda v: fortran(v).replace("0.", ".").replace("D", "d"),          # -.123456789012d-03
+              fortran,                                                            # -0.123456789012D-03
+              lambda v: f"{abs(v) * 1e15:016.0f}"[:16] + "D-9",                   # 16 digits, no point
+              lambda v: ""]                                                       # blank
+    texts = [styles[k % 5](mant[k] * 10.0 ** expo[k]).rjust(19) for k in range(400)]
+    assert all(len(t) == 19 for t in texts)
+    # records of 8 lines: 3 fields on the first line (after a 22-column epoch), 4 on the next seven
+    lines, per_rec = [], 31
+    n_rec = len(texts) // per_rec
+    for r in range(n_rec):
+        f = texts[r * per_rec:(r + 1) * per_rec]
+        lines.append(" 1 05  4  2  2  0  0.0" + "".join(f[:3]))
+        for m in range(7):
+            lines.append("   " + "".join(f[3 + 4 * m:7 + 4 * m]))
+    lines.append(" 2 05  4  2  2  0  0.0 1.0D+00 1.2D-0X" + " " * 10)   # malformed exponent
+    lines += ["   " + " 0.0D+00" * 4] * 7
+    lens = np.array([len(s) for s in lines], dtype=np.int64)
+    starts = np.concatenate(([0], np.cumsum(lens[:-1] + 1))).astype(np.int64)
+    buf = np.frombuffer("\n".join(lines).encode(), dtype=np.uint8)
+    rec_line = np.arange(n_rec + 1, dtype=np.int64) * 8
+    values, ok, hard, hard_end = record_fields(buf, starts, lens, rec_line, np.full(n_rec + 1, 8, np.int64), 22, 3, 31)
+    fill_hard_fields(values, buf, hard, hard_end)
+    assert ok[:n_rec].all() and not ok[n_rec]
+    assert 0 < len(hard) < n_rec * per_rec          # both paths were taken
+    expected = np.array([float(t.replace("D", "E").replace("d", "e")) if t.strip() else 0.0
+                         for t in texts[:n_rec * per_rec]]).reshape(n_rec, per_rec)
+    assert np.array_equal(values[:n_rec], expected)  # bit-identical, signs of zeros aside
