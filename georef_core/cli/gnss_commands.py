@@ -36,7 +36,7 @@ def register(sub) -> None:
                                       "default: RINEX header. Write --base-pos=X,Y,Z when the first value is negative")
     p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
     p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
-    p.add_argument("--no-base-interpolation", action="store_true", help="use the latest older base epoch only")
+    p.add_argument("--no-base-interpolation", action="store_true", help="no interpolation: each rover epoch takes the nearest base epoch, older or newer (as RTKLIB demo5)")
     p.add_argument("--events", help="CSV of camera trigger times (column gps_time_s); default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

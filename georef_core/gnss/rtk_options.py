@@ -37,7 +37,7 @@ class RtkOptions:
     min_ambiguities_to_fix: int = 4
     outage_reset_epochs: int = 5
     max_age_s: float = 30.0
-    base_interpolation: bool = True    # interpolate base observations between base epochs (else latest older)
+    base_interpolation: bool = True    # interpolate base observations between base epochs (else the nearest base epoch)
     # --- atmosphere
     troposphere: str = "saastamoinen"  # saastamoinen | hopfield | off
     ionosphere: str = "broadcast"      # broadcast | off (single point positioning; see dd_ionosphere)
