@@ -8,7 +8,7 @@ from __future__ import annotations
 from sqlalchemy import and_, select
 
 from ..core.problems import Forbidden, NotFound, Unauthorized
-from ..models import Run, Schedule, Site, SiteRole, Stockpile, Survey, Upload, Webhook
+from ..models import Run, RunOutput, Schedule, Site, SiteRole, Stockpile, Survey, Upload, Webhook
 from .context import Ctx
 
 ROLE_RANK = {"viewer": 1, "editor": 2, "admin": 3}
@@ -71,6 +71,22 @@ def require_survey(ctx: Ctx, survey_id: str, role: str = "viewer") -> Survey:
 
 def require_run(ctx: Ctx, run_id: str, role: str = "viewer") -> Run:
     return _require_child(ctx, Run, run_id, role, "run")
+
+
+def require_run_with_outputs(ctx: Ctx, run_id: str, paths: tuple[str, ...],
+                             role: str = "viewer") -> tuple[Run, dict[str, RunOutput]]:
+    """require_run, plus the run's outputs among `paths` (by path), in the same query: the result
+    endpoints that GIS systems poll need one round trip to the database instead of two."""
+    if ctx.principal is None:
+        raise Unauthorized("authentication required")
+    rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
+                          .outerjoin(SiteRole, and_(SiteRole.site_id == Run.site_id,
+                                                    SiteRole.user_id == ctx.principal.user.id))
+                          .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
+                          .where(Run.id == run_id)).all() if run_id else []
+    run, have = (rows[0][0], rows[0][1]) if rows else (None, None)
+    _check(ctx, have, role, "run")
+    return run, {r[2].path: r[2] for r in rows if r[2] is not None}
 
 
 def require_stockpile(ctx: Ctx, stockpile_id: str, role: str = "viewer") -> Stockpile:

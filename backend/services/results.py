@@ -21,7 +21,7 @@ from ..models import Run, RunOutput, Site, Survey, VolumeMeasurement
 from ..storage import blob_key
 from . import result_files
 from .context import Ctx
-from .permissions import require_run, require_survey
+from .permissions import require_run, require_run_with_outputs, require_survey
 
 PATHS = {
     "trajectory": ("ppk/trajectory.pos",),
@@ -96,7 +96,17 @@ def _output(ctx: Ctx, run: Run, what: str, required: bool = True) -> RunOutput |
     paths = PATHS[what]
     rows = {o.path: o for o in ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run.id,
                                                                       RunOutput.path.in_(paths)))}
-    for p in paths:
+    return _pick_output(run, what, rows, required)
+
+
+def _run_and_output(ctx: Ctx, run_id: str, what: str) -> tuple[Run, RunOutput]:
+    """The run (the caller may read it) and its output `what`, in one query."""
+    run, rows = require_run_with_outputs(ctx, run_id, PATHS[what], "viewer")
+    return run, _pick_output(run, what, rows, True)
+
+
+def _pick_output(run: Run, what: str, rows: dict[str, RunOutput], required: bool) -> RunOutput | None:
+    for p in PATHS[what]:
         if p in rows:
             return rows[p]
     if required:
@@ -115,8 +125,7 @@ def output_by_path(ctx: Ctx, run_id: str, path: str) -> RunOutput:
 
 
 def output_for(ctx: Ctx, run_id: str, what: str) -> RunOutput:
-    run = require_run(ctx, run_id, "viewer")
-    return _output(ctx, run, what)
+    return _run_and_output(ctx, run_id, what)[1]
 
 
 def _text(ctx: Ctx, o: RunOutput) -> str:
@@ -164,14 +173,18 @@ def _cached(key: tuple, build) -> Rendered:
     return hit
 
 
+def _raw(ctx: Ctx, o: RunOutput, media: str, filename: str) -> Rendered:
+    """An output file as stored, kept in the rendered cache (no file read per poll)."""
+    return _cached(("raw", o.sha256, media, filename),
+                   lambda: Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), media, f'"{o.sha256[:32]}"', filename))
+
+
 def trajectory(ctx: Ctx, run_id: str, fmt: str, every: int) -> Rendered:
     _check_format(fmt, ("json", "csv", "geojson", "pos"))
     every = max(1, min(int(every), 100000))
-    run = require_run(ctx, run_id, "viewer")
-    o = _output(ctx, run, "trajectory")
+    run, o = _run_and_output(ctx, run_id, "trajectory")
     if fmt == "pos":
-        return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "text/plain; charset=utf-8", f'"{o.sha256[:32]}"',
-                        f"run{run.number}_trajectory.pos")
+        return _raw(ctx, o, "text/plain; charset=utf-8", f"run{run.number}_trajectory.pos")
 
     def build():
         rows = result_files.parse_pos(_text(ctx, o))[::every]
@@ -195,11 +208,9 @@ def trajectory(ctx: Ctx, run_id: str, fmt: str, every: int) -> Rendered:
 
 def camera_positions(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
     _check_format(fmt, ("json", "csv", "geojson"))
-    run = require_run(ctx, run_id, "viewer")
-    o = _output(ctx, run, "camera_positions")
+    run, o = _run_and_output(ctx, run_id, "camera_positions")
     if fmt == "csv":
-        return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "text/csv; charset=utf-8", f'"{o.sha256[:32]}"',
-                        f"run{run.number}_camera_positions.csv")
+        return _raw(ctx, o, "text/csv; charset=utf-8", f"run{run.number}_camera_positions.csv")
 
     def build():
         rows = result_files.parse_csv(_text(ctx, o))
@@ -242,8 +253,7 @@ def residuals(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
     oc = _output(ctx, run, "residuals_csv", required=False)
     src = (oj or oc or _output(ctx, run, "residuals_json")).sha256
     if fmt == "csv" and oc is not None:
-        return Rendered(ctx.storage.read_bytes(blob_key(oc.sha256)), "text/csv; charset=utf-8", f'"{oc.sha256[:32]}"',
-                        f"run{run.number}_residuals.csv")
+        return _raw(ctx, oc, "text/csv; charset=utf-8", f"run{run.number}_residuals.csv")
 
     def build():
         data = residuals_data(ctx, run)
@@ -271,8 +281,7 @@ def residuals(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
 
 
 def lever_arm(ctx: Ctx, run_id: str) -> Rendered:
-    run = require_run(ctx, run_id, "viewer")
-    o = _output(ctx, run, "lever_arm")
+    run, o = _run_and_output(ctx, run_id, "lever_arm")
     return Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), "application/json", f'"{o.sha256[:32]}"')
 
 
