@@ -137,17 +137,17 @@ def _nearest_epochs(tb, rover_time_s, phase_res, code_res, el, base, lli_slip, b
     """Without interpolation each rover epoch takes the nearest base epoch, older or newer, within the maximum
     age (as RTKLIB demo5 pairs them); a base slip applies from the first rover epoch whose base epoch is at
     or after it."""
-    prev = -1
-    for e in range(len(rover_time_s)):
-        if ok0[e] and (not ok1[e] or dt0[e] <= dt1[e]):
-            j, a = i0c[e], dt0[e]
-        elif ok1[e]:
-            j, a = i1c[e], dt1[e]
-        else:
-            continue
-        out_phase[e], out_code[e], out_el[e] = phase_res[j], code_res[j], el[j]
-        half[e], snr[e] = base_half[j], base.snr_dbhz[j]
-        age[e] = abs(a)
-        if j > prev:
-            slip_into[e] |= lli_slip[prev + 1:j + 1].any(axis=0) if prev >= 0 else lli_slip[j]
-            prev = j
+    use0 = ok0 & (~ok1 | (dt0 <= dt1))
+    e_idx = np.nonzero(use0 | ok1)[0]
+    if len(e_idx) == 0:
+        return
+    j = np.where(use0, i0c, i1c)[e_idx]            # non-decreasing: the nearest epoch moves forward in time
+    out_phase[e_idx], out_code[e_idx], out_el[e_idx] = phase_res[j], code_res[j], el[j]
+    half[e_idx], snr[e_idx] = base_half[j], base.snr_dbhz[j]
+    age[e_idx] = np.abs(np.where(use0, dt0, dt1)[e_idx])
+    # slips flagged at base epochs prev+1 .. j, where prev is the base epoch of the previous rover epoch served
+    cum = np.zeros((len(tb) + 1,) + lli_slip.shape[1:], dtype=np.int64)
+    np.cumsum(lli_slip, axis=0, out=cum[1:])
+    prev = np.concatenate(([j[0] - 1], j[:-1]))
+    new = j > prev
+    slip_into[e_idx[new]] |= (cum[j[new] + 1] - cum[prev[new] + 1]) > 0
