@@ -86,6 +86,20 @@ class Platform:
         return self.app.state.database
 
 
+def start_s3_server():
+    """moto's S3 server on a free loopback port, as the object store in place of MinIO (which needs Docker):
+    (server, overrides for make_platform). Stop it with server.stop()."""
+    from moto.server import ThreadedMotoServer
+
+    with socket.socket() as sk:
+        sk.bind(("127.0.0.1", 0))
+        port = sk.getsockname()[1]
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    return server, {"storage": "s3", "s3_endpoint_url": f"http://127.0.0.1:{port}", "s3_bucket": "georef",
+                    "s3_access_key_id": "georef", "s3_secret_access_key": "georef-secret"}
+
+
 def make_platform(tmp: Path, shape: str, queue: str = "georef", **overrides) -> Platform:
     data = tmp / f"platform-{shape}"
     data.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,5 @@
-"""End to end on the production shape (PostgreSQL + Redis + a real Celery worker process with beat):
+"""End to end on the production shape (PostgreSQL + Redis + S3 object storage + a real Celery worker
+process with beat; the S3 store is moto's S3 server on the loopback, in place of MinIO, which needs Docker):
 a simulated survey is uploaded through the API in resumable chunks, checked, processed while the
 test follows the server-sent events, and its results read back: camera positions, trajectory, the
 check-point residual table (CSV/JSON/GeoJSON), the PDF report, the volumes (when the dense and
@@ -19,7 +20,7 @@ from http.server import BaseHTTPRequestHandler, HTTPServer
 import pytest
 
 from ..backend.platform_helpers import (Api, add_user, close_platform, have_postgres, have_redis, make_platform,
-                                        start_worker, wait_run, zip_folder)
+                                        start_s3_server, start_worker, wait_run, zip_folder)
 
 
 def _importable(target: str) -> bool:
@@ -58,8 +59,9 @@ class Hook(BaseHTTPRequestHandler):
 def env(tmp_path_factory, small_survey):
     if not (have_postgres() and have_redis()):
         pytest.skip("PostgreSQL (127.0.0.1:5432) and Redis (127.0.0.1:6379) are needed")
+    s3, s3_settings = start_s3_server()
     p = make_platform(tmp_path_factory.mktemp("e2e"), "postgres", queue="e2e", new_data_debounce_s=0,
-                      schedule_tick_s=1)
+                      schedule_tick_s=1, **s3_settings)
     server = HTTPServer(("127.0.0.1", 0), Hook)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     start_worker(p, "w1", beat=True)
@@ -67,6 +69,7 @@ def env(tmp_path_factory, small_survey):
     yield p, Api(p, "surveyor@example.org"), server
     server.shutdown()
     close_platform(p)
+    s3.stop()
 
 
 def _sse_events(api: Api, run_id: str, timeout_s: float = 400) -> list[tuple[str, dict]]:
@@ -156,6 +159,13 @@ def test_survey_through_the_api(env, small_survey):
     pos = api.get(f"/api/v1/runs/{run['id']}/results/trajectory?format=pos")
     assert pos.status_code == 200 and pos.text.startswith("%")
     etag = pos.headers["etag"]
+    # the stored file through the object store, whole and by byte range (resumable downloads)
+    assert p.settings.storage == "s3"
+    whole = api.get(f"/api/v1/runs/{run['id']}/results/files/ppk/trajectory.pos")
+    assert whole.status_code == 200 and whole.content == pos.content
+    part = api.get(f"/api/v1/runs/{run['id']}/results/files/ppk/trajectory.pos", headers={"Range": "bytes=100-299"})
+    assert part.status_code == 206 and part.content == pos.content[100:300]
+    assert part.headers["content-range"] == f"bytes 100-299/{len(pos.content)}"
     assert api.get(f"/api/v1/runs/{run['id']}/results/trajectory?format=pos",
                    headers={"If-None-Match": etag}).status_code == 304
     pdf = api.get(f"/api/v1/surveys/{survey['id']}/report.pdf")
