@@ -5,6 +5,7 @@ GPST - leap seconds."""
 from __future__ import annotations
 
 import datetime as _dt
+import math
 
 import numpy as np
 
@@ -74,9 +75,10 @@ def utc_datetime_to_gps_time_s(utc: _dt.datetime) -> float:
 
 
 def resolve_tow_near(tow_s: float, week_ref_time_s: float) -> float:
-    """A time-of-week (GPS scale) turned into gps_time_s, choosing the week closest to a reference time."""
-    week, _ = gps_time_s_to_week_tow(week_ref_time_s)
-    t = week * SECONDS_PER_WEEK + tow_s
+    """A time-of-week (GPS scale) turned into gps_time_s, choosing the week closest to a reference time.
+    Scalars only (math.floor: np.floor on a Python float was most of its cost, two calls per navigation
+    record)."""
+    t = math.floor(week_ref_time_s / SECONDS_PER_WEEK) * SECONDS_PER_WEEK + tow_s
     if t - week_ref_time_s > SECONDS_PER_WEEK / 2:
         t -= SECONDS_PER_WEEK
     elif t - week_ref_time_s < -SECONDS_PER_WEEK / 2:

@@ -41,7 +41,6 @@ from ..errors import InputFileError
 from .compressed_files import read_text
 from .gnss_time import (
     BDS_MINUS_GPS_S,
-    SECONDS_PER_WEEK,
     leap_seconds_at,
     resolve_tow_near,
 )
@@ -59,7 +58,6 @@ _UNKNOWN_TRANSMIT = 9.0e8
 # Free-format fallback: a RINEX navigation number always has a decimal point and an exponent.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.\d*|\.\d+)[EeDd][+-]?\d+")
 _DAY_S = 86400.0
-_HALF_WEEK_S = SECONDS_PER_WEEK / 2
 
 
 def read_rinex_nav(paths: PathLike | Sequence[PathLike]) -> NavigationData:
@@ -293,9 +291,8 @@ def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Re
     rec_line = np.array([sp[1] for sp in spans], dtype=np.int64)
     rec_n = np.array([sp[2] for sp in spans], dtype=np.int64)
     n_values = 3 + 4 * (int(rec_n.max()) - 1)
-    values, ok, hard, hard_end = record_fields(buf, starts, lens, rec_line, rec_n, 23 if v3 else 22, 4 if v3 else 3,
-                                              n_values)
-    fill_hard_fields(values, buf, hard, hard_end)
+    values, ok, hard = record_fields(buf, starts, lens, rec_line, rec_n, 23 if v3 else 22, 4 if v3 else 3, n_values)
+    fill_hard_fields(values, buf, hard)
     for k, (system, start, nlines) in enumerate(spans):
         data = values[k, :3 + 4 * (nlines - 1)].tolist() if ok[k] else None
         yield _parse_record(lines[start], lines[start + 1:start + nlines], start + 1, system, v3, path, data)
@@ -392,18 +389,8 @@ def _kepler(rec: _Record) -> KeplerEphemeris:
     sys = rec.system
     t_epoch = _epoch_seconds(rec.epoch)  # GPST for G/J/E, BDT for C
     offset = -BDS_MINUS_GPS_S if sys == "C" else 0.0   # system time -> GPST
-    # gnss_time.resolve_tow_near, inlined (two calls per record were a tenth of the reading time)
-    week_start = math.floor(t_epoch / SECONDS_PER_WEEK) * SECONDS_PER_WEEK
-    toe = week_start + d[11]
-    if toe - t_epoch > _HALF_WEEK_S:
-        toe -= SECONDS_PER_WEEK
-    elif toe - t_epoch < -_HALF_WEEK_S:
-        toe += SECONDS_PER_WEEK
-    toe += offset
-    if abs(d[27]) >= _UNKNOWN_TRANSMIT:
-        transmit = float("nan")
-    else:
-        transmit = resolve_tow_near(d[27], t_epoch) + offset
+    toe = resolve_tow_near(d[11], t_epoch) + offset
+    transmit = float("nan") if abs(d[27]) >= _UNKNOWN_TRANSMIT else resolve_tow_near(d[27], t_epoch) + offset
     eph = KeplerEphemeris(
         sat_id=f"{sys}{rec.prn:02d}",
         toe_gps_s=toe,

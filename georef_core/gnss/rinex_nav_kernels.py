@@ -99,14 +99,12 @@ def _field(buf, start, end, pow10):
 def record_fields(buf, line_start, line_len, rec_line, rec_n_lines, data_col, cont_col, n_values):
     """Numbers of each record (rows of (n_records, n_values), zero-padded): 3 fields from column data_col of
     its first line, 4 from column cont_col of each further line. ok[r] is False when a field of record r
-    is not a number or a line carries text beyond its fields; hard (n_hard, 3: record, value index, byte
-    offset of the field) lists the fields left to Python's float() (19 bytes or to the end of the line:
-    hard_end)."""
+    is not a number or a line carries text beyond its fields; hard (n_hard, 4: record, value index, first
+    and end byte offset of the field) lists the fields left to Python's float()."""
     n_rec = rec_line.shape[0]
     values = np.zeros((n_rec, n_values))
     ok = np.ones(n_rec, np.bool_)
-    hard = np.empty((n_rec * n_values, 3), np.int64)
-    hard_end = np.empty(n_rec * n_values, np.int64)
+    hard = np.empty((n_rec * n_values, 4), np.int64)
     n_hard = 0
     pow10 = _POW10
     for r in range(n_rec):
@@ -133,7 +131,7 @@ def record_fields(buf, line_start, line_len, rec_line, rec_n_lines, data_col, co
                         hard[n_hard, 0] = r
                         hard[n_hard, 1] = k
                         hard[n_hard, 2] = s0 + a
-                        hard_end[n_hard] = s0 + min(b, length)
+                        hard[n_hard, 3] = s0 + min(b, length)
                         n_hard += 1
                     values[r, k] = v
                 k += 1
@@ -148,13 +146,13 @@ def record_fields(buf, line_start, line_len, rec_line, rec_n_lines, data_col, co
                 break
         if not ok[r]:
             n_hard = first_hard   # the record goes to the Python path whole
-    return values, ok, hard[:n_hard], hard_end[:n_hard]
+    return values, ok, hard[:n_hard]
 
 
-def fill_hard_fields(values: np.ndarray, buf: np.ndarray, hard: np.ndarray, hard_end: np.ndarray) -> None:
+def fill_hard_fields(values: np.ndarray, buf: np.ndarray, hard: np.ndarray) -> None:
     """Python's float() (correctly rounded, as strtod) for the fields record_fields left to it."""
     if len(hard) == 0:
         return
     raw = buf.tobytes()
-    texts = [raw[a:b].replace(b"D", b"E").replace(b"d", b"e") for a, b in zip(hard[:, 2].tolist(), hard_end.tolist())]
+    texts = [raw[a:b].replace(b"D", b"E").replace(b"d", b"e") for a, b in hard[:, 2:].tolist()]
     values[hard[:, 0], hard[:, 1]] = [float(t) for t in texts]

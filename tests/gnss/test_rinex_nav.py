@@ -499,8 +499,8 @@ def test_compiled_field_reader_is_bit_identical_to_float():
     starts = np.concatenate(([0], np.cumsum(lens[:-1] + 1))).astype(np.int64)
     buf = np.frombuffer("\n".join(lines).encode(), dtype=np.uint8)
     rec_line = np.arange(n_rec + 1, dtype=np.int64) * 8
-    values, ok, hard, hard_end = record_fields(buf, starts, lens, rec_line, np.full(n_rec + 1, 8, np.int64), 22, 3, 31)
-    fill_hard_fields(values, buf, hard, hard_end)
+    values, ok, hard = record_fields(buf, starts, lens, rec_line, np.full(n_rec + 1, 8, np.int64), 22, 3, 31)
+    fill_hard_fields(values, buf, hard)
     assert ok[:n_rec].all() and not ok[n_rec]
     assert 0 < len(hard) < n_rec * per_rec          # both paths were taken
     expected = np.array([float(t.replace("D", "E").replace("d", "e")) if t.strip() else 0.0
