@@ -92,11 +92,13 @@ def list_outputs(ctx: Ctx, run_id: str) -> list[RunOutput]:
     return list(ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run_id).order_by(RunOutput.path)))
 
 
-def _output(ctx: Ctx, run: Run, what: str, required: bool = True) -> RunOutput | None:
-    paths = PATHS[what]
-    rows = {o.path: o for o in ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run.id,
+def _outputs_of(ctx: Ctx, run: Run, paths: tuple[str, ...]) -> dict[str, RunOutput]:
+    return {o.path: o for o in ctx.db.scalars(select(RunOutput).where(RunOutput.run_id == run.id,
                                                                       RunOutput.path.in_(paths)))}
-    return _pick_output(run, what, rows, required)
+
+
+def _output(ctx: Ctx, run: Run, what: str, required: bool = True) -> RunOutput | None:
+    return _pick_output(run, what, _outputs_of(ctx, run, PATHS[what]), required)
 
 
 def _run_and_output(ctx: Ctx, run_id: str, what: str) -> tuple[Run, RunOutput]:
@@ -238,25 +240,36 @@ def _points_of_run(ctx: Ctx, run: Run) -> dict[str, dict]:
     return {p["name"]: p for p in pts}
 
 
-def residuals_data(ctx: Ctx, run: Run) -> dict:
-    oj = _output(ctx, run, "residuals_json", required=False)
-    oc = _output(ctx, run, "residuals_csv", required=False)
+_RESIDUAL_PATHS = PATHS["residuals_json"] + PATHS["residuals_csv"]
+
+
+def _residual_files(run: Run, rows: dict[str, RunOutput]) -> tuple[RunOutput | None, RunOutput | None]:
+    """(JSON, CSV) residual tables of the run among its outputs `rows`; raises when it has neither."""
+    oj = _pick_output(run, "residuals_json", rows, False)
+    oc = _pick_output(run, "residuals_csv", rows, False)
     if oj is None and oc is None:
-        _output(ctx, run, "residuals_json")   # raises the right problem
+        _pick_output(run, "residuals_json", rows, True)   # raises the right problem
+    return oj, oc
+
+
+def _residuals_from(ctx: Ctx, oj: RunOutput | None, oc: RunOutput | None) -> dict:
     return result_files.normalise_residuals(_text(ctx, oj) if oj else None, _text(ctx, oc) if oc else None)
+
+
+def residuals_data(ctx: Ctx, run: Run) -> dict:
+    return _residuals_from(ctx, *_residual_files(run, _outputs_of(ctx, run, _RESIDUAL_PATHS)))
 
 
 def residuals(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
     _check_format(fmt, ("json", "csv", "geojson"))
-    run = require_run(ctx, run_id, "viewer")
-    oj = _output(ctx, run, "residuals_json", required=False)
-    oc = _output(ctx, run, "residuals_csv", required=False)
-    src = (oj or oc or _output(ctx, run, "residuals_json")).sha256
+    run, rows = require_run_with_outputs(ctx, run_id, _RESIDUAL_PATHS, "viewer")
+    oj, oc = _residual_files(run, rows)
+    src = (oj or oc).sha256
     if fmt == "csv" and oc is not None:
         return _raw(ctx, oc, "text/csv; charset=utf-8", f"run{run.number}_residuals.csv")
 
     def build():
-        data = residuals_data(ctx, run)
+        data = _residuals_from(ctx, oj, oc)
         etag = f'"{src[:24]}-{fmt}"'
         pts = [{k: v for k, v in p.items() if not isinstance(v, (dict, list))} for p in data["points"]]
         if fmt == "json":
@@ -404,10 +417,10 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
 
     from .stockpiles import validate_base, validate_outline
 
-    run = require_run(ctx, run_id, "viewer")
+    run, rows = require_run_with_outputs(ctx, run_id, PATHS["dsm"] + PATHS["dense_summary"], "viewer")
     outline, base = validate_outline(outline), validate_base(base)
-    o = _output(ctx, run, "dsm")
-    summary = _output(ctx, run, "dense_summary", required=False)
+    o = _pick_output(run, "dsm", rows, True)
+    summary = _pick_output(run, "dense_summary", rows, False)
     site = ctx.db.get(Site, run.site_id)
     try:
         from georef_core.errors import GeorefError
