@@ -242,7 +242,7 @@ def execute_step(run_id: str, step: str) -> str:
     try:
         pipeline.check_available(step, run)
     except pipeline.StepUnavailable as exc:
-        ok, msgs = jobs.mark_unavailable(db, claim, f"not available in this installation: {exc}")
+        ok, msgs = jobs.mark_unavailable(db, claim, f"not available in this installation: {exc}", storage=storage)
         _send(settings, db, storage, msgs)
         return "unavailable"
     h = input_hash(run, step)
@@ -251,7 +251,8 @@ def execute_step(run_id: str, step: str) -> str:
         if reuse is not None and all(storage.exists(blob_key(sha)) for _, sha, _ in reuse[2]):
             step_id, summary, outputs, src_run = reuse
             volumes = jobs.volumes_of_run(db, src_run) if step == "volumes" else None
-            ok, msgs = jobs.finish_step(db, claim, h, outputs, summary or {}, reused_from=step_id, volumes=volumes)
+            ok, msgs = jobs.finish_step(db, claim, h, outputs, summary or {}, reused_from=step_id, volumes=volumes,
+                                           storage=storage)
             _send(settings, db, storage, msgs)
             return "reused" if ok else "lost"
     run_dir = settings.resolved_work_dir() / "runs" / run_id
@@ -275,7 +276,7 @@ def execute_step(run_id: str, step: str) -> str:
                 raise LostClaim("step taken over by another worker")
             outputs = collect_outputs(storage, out_dir, before)
             _write_manifest(out_dir, {**before, **{p: s for p, s, _ in outputs}})
-        ok, msgs = jobs.finish_step(db, claim, h, outputs, summary, volumes=volumes)
+        ok, msgs = jobs.finish_step(db, claim, h, outputs, summary, volumes=volumes, storage=storage)
         _send(settings, db, storage, msgs)
         return "done" if ok else "lost"
     except LostClaim:

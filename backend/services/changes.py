@@ -74,17 +74,22 @@ def compute_changes(s, storage: Storage, run: Run) -> dict:
             "volumes": vols}
 
 
+def record_changes(s, storage: Storage, run: Run) -> None:
+    """run.changes: the comparison with the previous successful run (never an error for the run itself)."""
+    try:
+        run.changes = compute_changes(s, storage, run)
+    except Exception as exc:   # a comparison must never turn a finished run into an error
+        run.changes = {"error": f"comparison failed: {type(exc).__name__}: {exc}"}
+
+
 def on_run_finished(db, storage: Storage, run_id: str) -> list[tuple]:
     """Record the comparison and queue the webhook deliveries; messages to send after commit."""
     with db.session() as s:
         run = s.get(Run, run_id)
         if run is None:
             return []
-        if run.state == "succeeded":
-            try:
-                run.changes = compute_changes(s, storage, run)
-            except Exception as exc:   # a comparison must never turn a finished run into an error
-                run.changes = {"error": f"comparison failed: {type(exc).__name__}: {exc}"}
+        if run.state == "succeeded" and run.changes is None:   # normally recorded with the run's end (jobs)
+            record_changes(s, storage, run)
         payload = {"run_id": run.id, "run_number": run.number, "survey_id": run.survey_id, "site_id": run.site_id,
                    "state": run.state, "error": run.error, "trigger": run.trigger,
                    "finished_at": run.finished_at.isoformat() if run.finished_at else None,

@@ -126,8 +126,10 @@ def find_reusable(db: Database, survey_id: str, step: str, input_hash: str, run_
 
 
 def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple[str, str, int]], summary: dict,
-                reused_from: str | None = None, volumes: list[dict] | None = None) -> tuple[bool, list[tuple]]:
-    """Record the outputs and mark the step done, queue the next; (recorded, messages to send)."""
+                reused_from: str | None = None, volumes: list[dict] | None = None,
+                storage=None) -> tuple[bool, list[tuple]]:
+    """Record the outputs and mark the step done, queue the next; (recorded, messages to send). With the
+    storage, a run that ends here gets its comparison with the previous run in the same transaction."""
     now = utcnow()
     with db.session() as s:
         n = s.execute(update(RunStep).where(RunStep.id == claim.step_id, RunStep.attempt == claim.attempt,
@@ -154,10 +156,10 @@ def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple
                                   if reused_from else f"step {claim.step} done: {len(outputs)} output files"),
                 claim.step)
         s.flush()
-        return True, _advance(s, claim.run_id)
+        return True, _advance(s, claim.run_id, storage)
 
 
-def mark_unavailable(db: Database, claim: Claim, reason: str) -> tuple[bool, list[tuple]]:
+def mark_unavailable(db: Database, claim: Claim, reason: str, storage=None) -> tuple[bool, list[tuple]]:
     with db.session() as s:
         n = s.execute(update(RunStep).where(RunStep.id == claim.step_id, RunStep.attempt == claim.attempt,
                                             RunStep.state == "running")
@@ -166,7 +168,7 @@ def mark_unavailable(db: Database, claim: Claim, reason: str) -> tuple[bool, lis
             return False, []
         add_log(s, claim.run_id, f"step {claim.step} skipped: {reason}", claim.step, "warning")
         s.flush()
-        return True, _advance(s, claim.run_id)
+        return True, _advance(s, claim.run_id, storage)
 
 
 def fail_step(db: Database, claim: Claim, reason: str, cancelled: bool = False) -> tuple[bool, list[tuple]]:
@@ -212,7 +214,7 @@ def release_step(db: Database, claim: Claim, reason: str) -> list[tuple]:
         return []
 
 
-def _advance(s, run_id: str) -> list[tuple]:
+def _advance(s, run_id: str, storage=None) -> list[tuple]:
     """Queue the next pending step (marking those whose dependency is unavailable), or end the run."""
     steps = list(s.scalars(select(RunStep).where(RunStep.run_id == run_id).order_by(RunStep.position)))
     state = {st.name: st.state for st in steps}
@@ -233,15 +235,22 @@ def _advance(s, run_id: str) -> list[tuple]:
         return [("step", run_id, st.name)]
     run = s.get(Run, run_id)
     if all(st.state in TERMINAL_STEP_STATES for st in steps):
-        return _end_run(s, run, "succeeded", None)
+        return _end_run(s, run, "succeeded", None, storage)
     return []
 
 
-def _end_run(s, run: Run, state: str, error: str | None) -> list[tuple]:
+def _end_run(s, run: Run, state: str, error: str | None, storage=None) -> list[tuple]:
+    """End the run. A successful one gets its comparison in the same transaction when the storage is
+    given: a client that sees 'succeeded' finds the changes too (GET /runs/{id}/changes)."""
     n = s.execute(update(Run).where(Run.id == run.id, Run.state.in_(("queued", "running")))
                   .values(state=state, error=error, finished_at=utcnow(), version=Run.version + 1)).rowcount
     if n != 1:
         return []
+    if state == "succeeded" and storage is not None:
+        from .changes import record_changes
+
+        s.refresh(run)
+        record_changes(s, storage, run)
     add_log(s, run.id, f"run {state}" + (f": {error}" if error else ""), None, "error" if state == "failed" else "info")
     if run.trigger in ("schedule", "new-data"):
         s.execute(update(Schedule).where(Schedule.site_id == run.site_id).values(last_run_at=utcnow()))
