@@ -23,6 +23,7 @@ from .rtk_options import RtkOptions
 from .satellite_geometry import compute_observed_satellites
 from .smoothing import combine
 from .spp import CLOCK_COLUMN, SppResult, solve_spp
+from .tdcp_slips import single_difference_model_m, time_differenced_slips
 
 
 @dataclass
@@ -96,6 +97,18 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
         lat, lon, _ = ecef_to_geodetic(pos)
         pos = pos + ecef_to_enu_rotation(lat, lon).T @ np.asarray(opts.base_antenna_delta_enu_m)
     return pos, notes
+
+
+def _unflagged_slips(rover, rsat, position_ecef_m, trop_m, iono_m, lam, base_phase_res_m, flagged, sat_ids,
+                     threshold_m):
+    """Slips neither receiver flagged, from the time-differenced single-difference phase (tdcp_slips)."""
+    rng, los = single_difference_model_m(position_ecef_m, np.nan_to_num(rsat.position_ecef_m))
+    model = rng - CLIGHT_M_S * np.nan_to_num(rsat.clock_bias_s) + trop_m
+    sd = rover.phase_cyc * lam[None] - (model[..., None] - iono_m) - base_phase_res_m
+    sd[~rsat.valid] = np.nan
+    systems = sorted({s[0] for s in sat_ids})
+    sys_code = np.array([systems.index(s[0]) for s in sat_ids], dtype=np.int64)
+    return time_differenced_slips(rover.gps_time_s, sd, los, sys_code, flagged, threshold_m)
 
 
 def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions):
@@ -183,6 +196,9 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
     slips = lli_slips(rover.lli, rover.phase_cyc) | aligned.slip_into
     slips |= geometry_free_slips(rover.phase_cyc, lam, opts.slip_gf_threshold_m)
     slips |= doppler_slips(rover.phase_cyc, rover.doppler_hz, rover.gps_time_s, opts.slip_doppler_threshold_cyc)
+    if opts.slip_tdcp_threshold_m > 0:
+        slips |= _unflagged_slips(rover, rsat, spp_pos, trop, iono, lam, aligned.phase_res_m, slips, sat_ids,
+                                  opts.slip_tdcp_threshold_m)
     slip_cum = np.zeros((len(rover.gps_time_s) + 1,) + slips.shape[1:], dtype=np.int32)
     np.cumsum(slips, axis=0, out=slip_cum[1:])
     half = (rover.lli & 2).astype(bool) | aligned.half_cycle

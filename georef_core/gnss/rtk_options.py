@@ -49,6 +49,7 @@ class RtkOptions:
     # --- cycle slips and outliers
     slip_gf_threshold_m: float = 0.05
     slip_doppler_threshold_cyc: float = 0.0   # 0 = off
+    slip_tdcp_threshold_m: float = 0.05       # time-differenced phase fit residual (tdcp_slips); 0 = off
     reject_innovation_m: float = 30.0
     # --- noise model (sigma_phase^2 = 2 (a^2 + (b / sin el)^2), sigma_code = f * sigma_phase)
     phase_error_a_m: float = 0.002
