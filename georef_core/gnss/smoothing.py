@@ -25,23 +25,37 @@ def _fixed_run_lengths(status: np.ndarray, backward: bool) -> np.ndarray:
     return run
 
 
+def _lone_fix(status: np.ndarray) -> np.ndarray:
+    """Fixed epochs whose neighbours in the pass (both, where they exist) are not fixed."""
+    fixed = status == STATUS_FIX
+    before = np.concatenate([[False], fixed[:-1]])
+    after = np.concatenate([fixed[1:], [False]])
+    return fixed & ~before & ~after
+
+
 def _rank(status: np.ndarray) -> np.ndarray:
     """Lower is better: fix 1 < float 2 < single 5; none is worst."""
     return np.where(status == STATUS_NONE, 99, status)
 
 
 def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndarray]:
-    """Per epoch: the better-quality pass where qualities differ; the covariance-weighted mean of two float
-    passes; the plain mean (covariance not reduced) of two fixed passes. Two fixed passes that disagree by
-    more than 5 cm hold a wrong integer between them: the one fixed without a break for at least 10 epochs
-    and 3 times longer than the other is kept, else the epoch is downgraded to float. Returns the combined
-    output and a per-epoch conflict flag (set whichever way the conflict went)."""
+    """Per epoch: the better-quality pass where qualities differ (except a lone fix, below); the
+    covariance-weighted mean of two float passes; the plain mean (covariance not reduced) of two fixed
+    passes. Two fixed passes that disagree by more than 5 cm hold a wrong integer between them: the one
+    fixed without a break for at least 10 epochs and 3 times longer than the other is kept, else the epoch
+    is downgraded to float. A fix alone in its pass (its neighbours there not fixed) against a float of the
+    other pass gives the float. Returns the combined output and a per-epoch conflict flag (set whichever
+    way the conflict went)."""
     n = len(fwd.status)
     out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
                        fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy())
     conflict = np.zeros(n, dtype=bool)
     rf, rb = _rank(fwd.status), _rank(bwd.status)
     take_b = rb < rf
+    # a pass's lone fix (float on both sides in that pass) where the other pass is float is not taken: on the
+    # u-blox walk these were the combined solution's only fixes the carrier phase contradicts (docs/gnss.md)
+    take_b &= ~(_lone_fix(bwd.status) & (fwd.status == STATUS_FLOAT))
+    take_b |= _lone_fix(fwd.status) & (bwd.status == STATUS_FLOAT)
     for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb"):
         getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
     both = (rf == rb) & (fwd.status != STATUS_NONE)
