@@ -6,6 +6,11 @@ positions it is millimetres (phase noise and the change of multipath in one epoc
 begins or ends between the two epochs shows as centimetres. This needs no truth and no integers, so it
 judges any engine's fixed solution on the same data (RTKLIB's as well as ours) where no reference
 trajectory exists: the u-blox walk of shared/data/gnss (docs/gnss.md).
+
+The same holds over any span of epochs in which a set of signals is tracked throughout without a slip:
+`anchored_rms_m` compares every fixed epoch of a solution with "anchor" epochs (fixed epochs that two
+engines agree on) across such spans. Where two engines' fixes part, the one whose positions the carrier
+phase ties to the anchors is right and the other is wrong, with no truth needed.
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ from .rtk_options import RtkOptions
 
 MIN_SIGNALS = 5            # satellites (signals) tracked without a slip over both epochs, references included
 JUMP_THRESHOLD_M = 0.02    # RMS change beyond which a pair of epochs is called inconsistent
+MIN_SPAN_SIGNALS = 6       # signals tracked without a gap or slip over a whole span to an anchor
+MAX_ANCHORS = 5            # anchors per epoch (the nearest in time with enough signals)
 
 
 def epoch_pair_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray,
@@ -65,3 +72,49 @@ def inconsistent_fixed_epochs(data: PreparedData, opts: RtkOptions, position_ece
     time-differenced carrier phase by more than threshold_m (RMS)."""
     rms = epoch_pair_rms_m(data, opts, position_ecef_m, fixed)
     return np.nonzero(rms > threshold_m)[0]
+
+
+def _span_signals(d, lo: int, hi: int, unbroken: np.ndarray) -> np.ndarray:
+    """(S, F) signals observed at every epoch lo..hi with no slip flagged at lo + 1..hi."""
+    return (unbroken[hi + 1] - unbroken[lo] == hi + 1 - lo) & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1])
+
+
+def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray, fixed: np.ndarray,
+                   anchor_ecef_m: np.ndarray, anchors: np.ndarray, max_anchors: int = MAX_ANCHORS,
+                   min_signals: int = MIN_SPAN_SIGNALS) -> tuple[np.ndarray, np.ndarray]:
+    """For every `fixed` epoch e: the RMS (m) over the double differences of the change of DD phase
+    residual between anchor epoch a (at anchor_ecef_m[a]) and e (at position_ecef_m[e]), over the signals
+    tracked without a gap or slip from a to e, the median over the (at most max_anchors) nearest anchors
+    with at least min_signals such signals. A position consistent with the anchors' carrier phase gives
+    the phase noise plus the change of multipath over the span (a centimetre or two over minutes on a
+    u-blox walk); a fix that differs from the anchors' in its integers gives decimetres.
+    Returns (rms (E,), NaN where not fixed or no anchor qualifies; number of anchors used (E,))."""
+    flt = RtkFilter(data, opts)
+    d, cfg = flt.arrays(), flt.config()
+    n_e = len(d.time_s)
+    zero_amb = np.zeros(cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
+    unbroken = np.concatenate([np.zeros((1,) + d.obs_ok.shape[1:], np.int64),
+                               np.cumsum(d.obs_ok, axis=0, dtype=np.int64)])
+    anchors = np.asarray(anchors, dtype=np.int64)
+    out = np.full(n_e, np.nan)
+    used = np.zeros(n_e, dtype=np.int64)
+    for e in np.nonzero(fixed)[0]:
+        rms = []
+        for a in anchors[np.argsort(np.abs(anchors - e), kind="stable")]:
+            if a == e:
+                continue
+            lo, hi = min(a, e), max(a, e)
+            ok = _span_signals(d, lo, hi, unbroken)
+            if ok.sum() < min_signals:
+                continue
+            r_a = phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]
+            r_e = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
+            change = _rereferenced_change(r_a, r_e, d.sys_code)
+            if change.size:
+                rms.append(float(np.sqrt(np.mean(change**2))))
+            if len(rms) == max_anchors:
+                break
+        if rms:
+            out[e] = float(np.median(rms))
+            used[e] = len(rms)
+    return out, used
