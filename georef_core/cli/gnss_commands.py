@@ -37,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
     p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
     p.add_argument("--no-base-interpolation", action="store_true", help="no interpolation: each rover epoch takes the nearest base epoch, older or newer (as RTKLIB demo5)")
+    p.add_argument("--tdcp-slips", type=float, metavar="M",
+                   help="threshold of the check for slips the receivers did not flag (time-differenced carrier "
+                        "phase), m (default 0.05; 0 = off)")
     p.add_argument("--events", help="CSV of camera trigger times (column gps_time_s); default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -89,6 +92,8 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
         changes["max_age_s"] = args.max_age
     if args.no_base_interpolation:
         changes["base_interpolation"] = False
+    if args.tdcp_slips is not None:
+        changes["slip_tdcp_threshold_m"] = args.tdcp_slips
     opts = opts.replace(**changes)
     try:
         opts.validate()

@@ -92,6 +92,8 @@ class RtkOptions:
             raise ValueError("mode known-start needs the take-off position (--known-start LAT,LON,H or X,Y,Z)")
         if not 0 <= self.elevation_mask_deg < 90:
             raise ValueError("elevation mask must be within [0, 90) degrees")
+        if not 0 <= self.slip_tdcp_threshold_m <= 1:
+            raise ValueError(f"time-differenced slip threshold {self.slip_tdcp_threshold_m} m: expected 0 (off) to 1 m")
 
     def replace(self, **changes) -> "RtkOptions":
         return dataclasses.replace(self, **changes)

@@ -114,3 +114,26 @@ def test_known_start_requires_position(tmp_path, capsys):
     rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "x.pos"),
                       "--mode", "known-start"], capsys)
     assert rc == 2 and "known-start" in err
+
+
+def test_tdcp_slip_threshold_option(tmp_path, capsys, monkeypatch):
+    """--tdcp-slips reaches the engine's options (0 turns the check off); a negative value is refused."""
+    from georef_core.cli import gnss_commands
+
+    seen = []
+    real = gnss_commands.options_from_args
+
+    def spy(args):
+        opts, notes = real(args)
+        seen.append(opts.slip_tdcp_threshold_m)
+        return opts, notes
+
+    monkeypatch.setattr(gnss_commands, "options_from_args", spy)
+    for value in ("0", "0.08"):
+        rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / f"t{value}.pos"),
+                          "--freq", "l1", "--filter", "forward", f"--base-pos={BASE_XYZ}", "--tdcp-slips", value], capsys)
+        assert rc == 0, err
+    assert seen == [0.0, 0.08]
+    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "bad.pos"),
+                      "--tdcp-slips", "-1"], capsys)
+    assert rc == 2 and "slip threshold" in err
