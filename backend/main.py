@@ -9,7 +9,7 @@ from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse
 
-from .api.router import api_router
+from .api.router import include_api
 from .core.limits import ConcurrencyLimit
 from .core.problems import NotFound, install_problem_handlers
 from .core.settings import Settings, get_settings
@@ -38,7 +38,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(SecurityHeaders)
     app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests)
-    app.include_router(api_router)
+    include_api(app)
     dist = settings.resolved_frontend_dist()
     if dist is not None:
         _serve_frontend(app, dist)

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import FastAPI
 
 from .routes import auth, health, results, runs, schedules, sites, stockpiles, surveys, tokens, uploads, users, webhooks
 
-api_router = APIRouter(prefix="/api/v1")
-# FastAPI matches a request against the routes one by one in this order (about 6 us each): the endpoints
-# dashboards and GIS systems poll come first
-for module in (results, runs, sites, surveys, stockpiles, health, uploads, auth, tokens, users, schedules, webhooks):
-    api_router.include_router(module.router)
+API_PREFIX = "/api/v1"
+# FastAPI matches a request against the routes one by one in this order: the endpoints dashboards and GIS
+# systems poll come first. Each module's router is included in the app itself, with the prefix: every
+# level of router nesting makes FastAPI scan the routes of that level twice per request.
+API_MODULES = (results, runs, sites, surveys, stockpiles, health, uploads, auth, tokens, users, schedules, webhooks)
+
+
+def include_api(app: FastAPI) -> None:
+    for module in API_MODULES:
+        app.include_router(module.router, prefix=API_PREFIX)
