@@ -37,7 +37,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                            allow_methods=["*"], allow_headers=["*"], expose_headers=["ETag", "Link", "X-Total-Count"])
 
     app.add_middleware(SecurityHeaders)
-    app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests)
+    app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests,
+                       read_limit=settings.resolved_max_concurrent_reads())
     include_api(app)
     dist = settings.resolved_frontend_dist()
     if dist is not None:

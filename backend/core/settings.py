@@ -5,6 +5,8 @@ variable at all; the production shape (docker-compose.yml) sets the database, br
 
 from __future__ import annotations
 
+import os
+
 from functools import lru_cache
 from pathlib import Path
 from typing import Literal
@@ -38,6 +40,14 @@ class Settings(BaseSettings):
     frontend_dist: Path | None = None  # default: <repo>/frontend/dist when it exists
     public_url: str = "http://127.0.0.1:8000"
     max_concurrent_requests: int = 32          # per API process; the database pool holds 60 connections
+    # GET/HEAD requests inside the application at once per process (0 = two per CPU core, at least 4): reads
+    # are CPU-bound, and more of them at once only share the cores and the GIL (docs/deploy.md)
+    max_concurrent_reads: int = 0
+
+    def resolved_max_concurrent_reads(self) -> int:
+        if self.max_concurrent_reads > 0:
+            return self.max_concurrent_reads
+        return max(4, 2 * (os.cpu_count() or 1))
 
     # --- uploads
     max_upload_bytes: int = 20 * 1024**3      # one file (an image archive can be GBs)
