@@ -57,14 +57,16 @@ def load_observations(path) -> LoadedObservations:
     raise InputFileError(path, "not a RINEX observation file nor a u-blox UBX log")
 
 
-def load_navigation(paths) -> NavigationData:
+def load_navigation(paths, time_window_gps_s: tuple[float, float] | None = None) -> NavigationData:
+    """Navigation files (RINEX, any packing, or UBX) merged; with a time window (first and last
+    observation time), RINEX records far outside it are not read (rinex_nav.read_rinex_nav)."""
     from .rinex_nav import read_rinex_nav
 
     nav = NavigationData()
     for p in paths:
         kind = sniff_kind(p)
         if kind == "rinex-nav":
-            nav = nav.merge(read_rinex_nav(p))
+            nav = nav.merge(read_rinex_nav(p, time_window_gps_s))
         elif kind == "ubx":
             from .ubx import read_ubx
 

@@ -79,13 +79,19 @@ class NavigationData:
     iono_bds_beta: np.ndarray | None = None
     leap_seconds: int | None = None
     source_paths: list[str] = field(default_factory=list)
+    records_outside_window: int = 0            # records skipped by a reader's time window
+    record_span_gps_s: tuple[float, float] | None = None   # epochs of all records read or skipped (RINEX)
 
     def glonass_fcn(self) -> dict[str, int]:
         return {sat: recs[-1].fcn for sat, recs in self.glonass.items() if recs}
 
     def merge(self, other: "NavigationData") -> "NavigationData":
         """Union of two navigation data sets (duplicates by toe and sat dropped)."""
-        out = NavigationData(source_paths=self.source_paths + other.source_paths)
+        out = NavigationData(source_paths=self.source_paths + other.source_paths,
+                             records_outside_window=self.records_outside_window + other.records_outside_window)
+        spans = [sp for sp in (self.record_span_gps_s, other.record_span_gps_s) if sp is not None]
+        if spans:
+            out.record_span_gps_s = (min(sp[0] for sp in spans), max(sp[1] for sp in spans))
         for attr in ("kepler", "glonass"):
             merged: dict = {}
             for src in (getattr(self, attr), getattr(other, attr)):

@@ -15,6 +15,7 @@ from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
 from .frames import ecef_to_enu_rotation, ecef_to_geodetic
+from .gnss_time import gps_time_s_to_datetime
 from .input_files import load_navigation, load_observations
 from .navigation import NavigationData
 from .observations import ObservationSet, RawObservations, select_bands
@@ -296,15 +297,33 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
     return sol
 
 
+def _observation_window_gps_s(*observations: RawObservations) -> tuple[float, float] | None:
+    """First and last epoch over the receivers' observations (None when none has an epoch)."""
+    times = [o.gps_time_s for o in observations if len(o.gps_time_s)]
+    if not times:
+        return None
+    return float(min(t.min() for t in times)), float(max(t.max() for t in times))
+
+
+def _utc_text(gps_time_s: float) -> str:
+    return f"{gps_time_s_to_datetime(gps_time_s):%Y-%m-%d %H:%M}"
+
+
 def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSolution:
     """Load the files (RINEX 2/3 in any packing, or UBX) and solve."""
     t0 = _time.perf_counter()
     rover = load_observations(rover_path)
     base = load_observations(base_path)
-    nav = load_navigation(list(nav_paths)) if nav_paths else NavigationData()
+    window = _observation_window_gps_s(rover.observations, base.observations)
+    nav = load_navigation(list(nav_paths), window) if nav_paths else NavigationData()
     for extra in (rover.navigation, base.navigation):
         if extra is not None:
             nav = nav.merge(extra)
+    if nav.n_records == 0 and nav.records_outside_window and window is not None:
+        a, b = nav.record_span_gps_s
+        raise ProcessingError(f"no navigation data for the epochs of {rover_path} ({_utc_text(window[0])} to "
+                              f"{_utc_text(window[1])} GPST): the records of {', '.join(map(str, nav_paths))} span "
+                              f"{_utc_text(a)} to {_utc_text(b)}")
     if nav.n_records == 0:
         raise InputFileError(nav_paths[0] if nav_paths else rover_path, "no navigation data (give a navigation file)")
     load_s = _time.perf_counter() - t0

@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import InputFileError
 from .compressed_files import read_text
+from .ephemeris import MAX_EPHEMERIS_AGE_S
 from .gnss_time import (
     BDS_MINUS_GPS_S,
     leap_seconds_at,
@@ -58,10 +59,20 @@ _UNKNOWN_TRANSMIT = 9.0e8
 # Free-format fallback: a RINEX navigation number always has a decimal point and an exponent.
 _NUMBER_RE = re.compile(r"[+-]?(?:\d+\.\d*|\.\d+)[EeDd][+-]?\d+")
 _DAY_S = 86400.0
+# records read around the observations' time window: as far from it as ephemeris selection may reach
+# (ephemeris.MAX_EPHEMERIS_AGE_S: 2 h GPS/QZSS, 4 h Galileo, 6 h BeiDou, 30 min GLONASS) plus one hour
+# (a record's epoch, toc or tb, may differ from its toe; time scale offsets)
+EPHEMERIS_WINDOW_SLACK_S = 3600.0
 
 
-def read_rinex_nav(paths: PathLike | Sequence[PathLike]) -> NavigationData:
+def read_rinex_nav(paths: PathLike | Sequence[PathLike],
+                   time_window_gps_s: tuple[float, float] | None = None) -> NavigationData:
     """Read one or several RINEX navigation files (plain, gzip, .Z) into one NavigationData.
+
+    With time_window_gps_s (first, last observation time), only the records that ephemeris selection could
+    use for it are read (within MAX_EPHEMERIS_AGE_S of their system plus an hour: a daily multi-GNSS file
+    holds thousands of records, a flight needs those of a few hours); the others are counted in
+    records_outside_window.
 
     Several files are merged with NavigationData.merge (duplicates by satellite, toe, IODE and
     Galileo data source dropped; header values of the first file that has them win).
@@ -77,7 +88,7 @@ def read_rinex_nav(paths: PathLike | Sequence[PathLike]) -> NavigationData:
         raise ValueError("read_rinex_nav: no navigation file given")
     nav: NavigationData | None = None
     for p in path_list:
-        one = _read_one(Path(p))
+        one = _read_one(Path(p), time_window_gps_s)
         nav = one if nav is None else nav.merge(one)
     assert nav is not None
     return nav
@@ -280,9 +291,13 @@ def _record_spans(lines: list[str], header: _Header, path: Path, buf: np.ndarray
     return spans
 
 
-def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Record]:
+def _iter_records(lines: list[str], header: _Header, path: Path,
+                  time_window_gps_s: tuple[float, float] | None = None,
+                  stats: dict | None = None) -> Iterator[_Record]:
     """The records of the file, their numbers read by the compiled fixed-column reader where it reads
-    every field (rinex_nav_kernels.py), else line by line here."""
+    every field (rinex_nav_kernels.py), else line by line here. With a time window, the records whose
+    epoch lies outside it are skipped before any of their numbers is read; `stats` then receives how
+    many were skipped and the span of all record epochs (for the caller's error message)."""
     v3 = header.version >= 3.0
     buf, starts, lens = _line_buffer(lines)
     spans = _record_spans(lines, header, path, buf, starts, lens)
@@ -290,12 +305,66 @@ def _iter_records(lines: list[str], header: _Header, path: Path) -> Iterator[_Re
         return
     rec_line = np.array([sp[1] for sp in spans], dtype=np.int64)
     rec_n = np.array([sp[2] for sp in spans], dtype=np.int64)
+    if time_window_gps_s is not None:
+        epoch_s, readable = _record_epochs_s(buf, starts, lens, rec_line, v3)
+        t0, t1 = time_window_gps_s
+        margin = np.array([MAX_EPHEMERIS_AGE_S.get(sp[0], max(MAX_EPHEMERIS_AGE_S.values())) for sp in spans])
+        margin += EPHEMERIS_WINDOW_SLACK_S
+        # unreadable epochs are kept: their record is then parsed and the error reported with its line
+        keep = ~readable | ((epoch_s >= t0 - margin) & (epoch_s <= t1 + margin))
+        if stats is not None and readable.any():
+            stats["skipped"] = stats.get("skipped", 0) + int((~keep).sum())
+            lo, hi = float(epoch_s[readable].min()), float(epoch_s[readable].max())
+            old = stats.get("span_gps_s")
+            stats["span_gps_s"] = (lo, hi) if old is None else (min(old[0], lo), max(old[1], hi))
+        if not keep.all():
+            idx = np.flatnonzero(keep)
+            spans = [spans[k] for k in idx]
+            rec_line, rec_n = rec_line[idx], rec_n[idx]
+            if not spans:
+                return
     n_values = 3 + 4 * (int(rec_n.max()) - 1)
     values, ok, hard = record_fields(buf, starts, lens, rec_line, rec_n, 23 if v3 else 22, 4 if v3 else 3, n_values)
     fill_hard_fields(values, buf, hard)
     for k, (system, start, nlines) in enumerate(spans):
         data = values[k, :3 + 4 * (nlines - 1)].tolist() if ok[k] else None
         yield _parse_record(lines[start], lines[start + 1:start + nlines], start + 1, system, v3, path, data)
+
+
+def _record_epochs_s(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray, rec_line: np.ndarray,
+                     v3: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Epoch of each record's first line (seconds since 1980-01-06 in its own time scale, whole seconds),
+    read from the fixed columns of the byte buffer for all records at once; and whether it was readable."""
+    # (first column, width) of year, month, day, hour, minute, second
+    cols = ((4, 4), (9, 2), (12, 2), (15, 2), (18, 2), (21, 2)) if v3 else \
+        ((3, 2), (6, 2), (9, 2), (12, 2), (15, 2), (17, 3))
+    line_start, line_len = starts[rec_line], lens[rec_line]
+    readable = line_len >= cols[-1][0] + cols[-1][1]
+    fields = []
+    for col, width in cols:
+        value = np.zeros(len(rec_line), dtype=np.int64)
+        seen_digit = np.zeros(len(rec_line), dtype=bool)
+        for k in range(width):
+            pos = np.minimum(line_start + col + k, len(buf) - 1)
+            ch = buf[pos].astype(np.int64)
+            digit = (ch >= 48) & (ch <= 57)
+            readable &= digit | ((ch == 32) & ~seen_digit)      # leading blanks only
+            value = value * 10 + np.where(digit, ch - 48, 0)
+            seen_digit |= digit
+        readable &= seen_digit
+        fields.append(value)
+    year, month, day, hour, minute, second = fields
+    if not v3:
+        year = np.where(year < 80, year + 2000, year + 1900)
+    readable &= (month >= 1) & (month <= 12) & (day >= 1) & (day <= 31)
+    # days from the civil date (proleptic Gregorian), relative to 1980-01-06
+    y = year - (month <= 2)
+    era = y // 400
+    yoe = y - era * 400
+    doy = (153 * (month + np.where(month > 2, -3, 9)) + 2) // 5 + day - 1
+    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
+    days = era * 146097 + doe - 719468 - 3657      # 1970-01-01 is day 0; 1980-01-06 is day 3657
+    return days * 86400.0 + hour * 3600.0 + minute * 60.0 + second, readable
 
 
 def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: bool, path: Path,
@@ -479,20 +548,22 @@ def _sorted_unique(records: Iterable, key_fn, time_attr: str) -> list:
     return out
 
 
-def _read_one(path: Path) -> NavigationData:
+def _read_one(path: Path, time_window_gps_s: tuple[float, float] | None = None) -> NavigationData:
     text = read_text(path)
     lines = text.splitlines()
     header = _parse_header(lines, path)
     kepler: dict[str, list[KeplerEphemeris]] = {}
     glonass: dict[str, list[GlonassEphemeris]] = {}
-    for rec in _iter_records(lines, header, path):
+    stats: dict = {}
+    for rec in _iter_records(lines, header, path, time_window_gps_s, stats):
         if rec.system == "R":
             g = _glonass(rec, header.leap_seconds)
             glonass.setdefault(g.sat_id, []).append(g)
         else:
             k = _kepler(rec)
             kepler.setdefault(k.sat_id, []).append(k)
-    nav = NavigationData(source_paths=[str(path)])
+    nav = NavigationData(source_paths=[str(path)], records_outside_window=stats.get("skipped", 0),
+                         record_span_gps_s=stats.get("span_gps_s"))
     nav.kepler = {s: _sorted_unique(r, _kepler_key, "transmit_gps_s") for s, r in sorted(kepler.items())}
     nav.glonass = {s: _sorted_unique(r, _glonass_key, "frame_time_gps_s") for s, r in sorted(glonass.items())}
     iono = header.iono

@@ -506,3 +506,62 @@ def test_compiled_field_reader_is_bit_identical_to_float():
     expected = np.array([float(t.replace("D", "E").replace("d", "e")) if t.strip() else 0.0
                          for t in texts[:n_rec * per_rec]]).reshape(n_rec, per_rec)
     assert np.array_equal(values[:n_rec], expected)  # bit-identical, signs of zeros aside
+
+
+# --------------------------------------------------------------------------------------------------
+# time window
+
+
+@needs_data
+@pytest.mark.parametrize("rel", sorted(EXPECTED_COUNTS))
+def test_record_epochs_read_in_bulk_match_the_line_parser(rel: str):
+    """The window's epochs come from the fixed columns of the byte buffer, all records at once: equal to
+    the line parser's epoch (whole seconds) for every record of every real file, RINEX 2 and 3."""
+    from georef_core.gnss.rinex_nav import (_epoch_seconds, _line_buffer, _parse_epoch, _parse_header,
+                                            _record_epochs_s, _record_spans)
+
+    path = DATA / rel
+    lines = _text(rel).splitlines()
+    header = _parse_header(lines, path)
+    v3 = header.version >= 3.0
+    buf, starts, lens = _line_buffer(lines)
+    rec_line = np.array([sp[1] for sp in _record_spans(lines, header, path, buf, starts, lens)])
+    epoch_s, readable = _record_epochs_s(buf, starts, lens, rec_line, v3)
+    assert readable.all()
+    expect = [np.floor(_epoch_seconds(_parse_epoch(lines[i][4:23] if v3 else lines[i][3:22], v3, path, i + 1)))
+              for i in rec_line]
+    np.testing.assert_array_equal(epoch_s, expect)
+
+
+@needs_data
+def test_time_window_reads_only_the_records_near_the_observations():
+    """A daily GPS file read for one hour of observations keeps the records within 3 h of it (2 h of
+    ephemeris validity + 1 h), the same ephemerides as a full read, and reports how many it skipped and
+    the span of all of them."""
+    rel = "rtklib_gsi_0759_3040_static/07590920.05n"
+    full = read_rinex_nav(DATA / rel)
+    t0 = calendar_to_gps_time_s(2005, 4, 2, 12, 0, 0.0)
+    window = read_rinex_nav(DATA / rel, (t0, t0 + 3600.0))
+    margin = 3 * 3600.0 + 1.0
+    n_full, n_window = full.n_records, window.n_records
+    assert 0 < n_window < 0.6 * n_full and window.records_outside_window == n_full - n_window
+    for sat, recs in full.kepler.items():
+        near = [r for r in recs if t0 - margin <= r.toc_gps_s <= t0 + 3600.0 + margin]
+        assert [(r.toe_gps_s, r.iode, r.sqrt_a) for r in window.kepler.get(sat, [])] == \
+            [(r.toe_gps_s, r.iode, r.sqrt_a) for r in near]
+    lo, hi = window.record_span_gps_s
+    assert lo <= min(r.toc_gps_s for recs in full.kepler.values() for r in recs) + 1.0
+    assert hi >= max(r.toc_gps_s for recs in full.kepler.values() for r in recs) - 1.0
+
+
+def test_unreadable_epoch_is_still_reported_with_a_window(tmp_path):
+    """A record whose epoch the bulk reader cannot read is kept, so the line parser reports it."""
+    text = (Path(__file__).resolve().parents[1] / "data" / "gnss" / "gsi_0759_3040" / "07590920.05n").read_text()
+    lines = text.splitlines()
+    body = next(i for i, line in enumerate(lines) if "END OF HEADER" in line) + 1
+    lines[body] = lines[body][:6] + "xx" + lines[body][8:]
+    bad = _write(tmp_path, "bad.05n", "\n".join(lines) + "\n")
+    t0 = calendar_to_gps_time_s(2005, 4, 2, 12, 0, 0.0)
+    with pytest.raises(InputFileError, match="epoch") as err:
+        read_rinex_nav(bad, (t0, t0 + 3600.0))
+    assert err.value.line == body + 1
