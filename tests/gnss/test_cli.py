@@ -137,3 +137,14 @@ def test_tdcp_slip_threshold_option(tmp_path, capsys, monkeypatch):
     rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "bad.pos"),
                       "--tdcp-slips", "-1"], capsys)
     assert rc == 2 and "slip threshold" in err
+
+
+def test_navigation_far_from_the_observations_names_both_spans(tmp_path, capsys):
+    """Every record months away from the observations: none is read, and the error names the rover,
+    the observation span and the records' span."""
+    nav = tmp_path / "january.05n"
+    shutil.copy(NAV, nav)
+    nav.write_text(nav.read_text().replace(" 05  4  ", " 05  1  "))
+    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(nav), "--out", str(tmp_path / "x.pos")], capsys)
+    assert rc == 2 and "no navigation data for the epochs of" in err and str(ROVER) in err
+    assert "2005-04-02" in err and "2005-01-0" in err and str(nav) in err
