@@ -60,11 +60,15 @@ def write_pos(path, sol, program: str = "georef") -> None:
     cols = [lat, lon, h, sol.status[valid].astype(int), sol.n_sats[valid].astype(int), sd[:, 1], sd[:, 0], sd[:, 2],
             sdne, sdeu, sdun, age, sol.ratio[valid]]
     times_ms = np.round(sol.time_s[valid] * 1000.0).astype(np.int64).tolist()
+    fmt = "%s %02d:%02d:%02d.%03d %14.9f %14.9f %10.4f %3d %3d %8.4f %8.4f %8.4f %8.4f %8.4f %8.4f %6.2f %6.1f"
+    dates: dict[int, str] = {}   # calendar date text per GPS day, formatted once
     for t_ms, row in zip(times_ms, zip(*(c.tolist() for c in cols))):
-        dt = gps_time_s_to_datetime(t_ms / 1000.0)
-        lines.append(f"{dt:%Y/%m/%d %H:%M:%S}.{t_ms % 1000:03d} {row[0]:14.9f} {row[1]:14.9f} {row[2]:10.4f} "
-                     f"{row[3]:3d} {row[4]:3d} {row[5]:8.4f} {row[6]:8.4f} {row[7]:8.4f} "
-                     f"{row[8]:8.4f} {row[9]:8.4f} {row[10]:8.4f} {row[11]:6.2f} {row[12]:6.1f}")
+        day, ms_of_day = divmod(t_ms, 86_400_000)
+        date = dates.get(day)
+        if date is None:
+            date = dates[day] = f"{gps_time_s_to_datetime(day * 86400.0):%Y/%m/%d}"
+        sec, ms = divmod(ms_of_day, 1000)
+        lines.append(fmt % (date, sec // 3600, sec // 60 % 60, sec % 60, ms, *row))
     Path(path).write_text("\n".join(lines) + "\n")
 
 
