@@ -9,8 +9,8 @@ trajectory exists: the u-blox walk of shared/data/gnss (docs/gnss.md).
 
 The same holds over any span of epochs in which a set of signals is tracked throughout without a slip:
 `anchored_rms_m` compares every fixed epoch of a solution with "anchor" epochs (fixed epochs that two
-engines agree on) across such spans. Where two engines' fixes part, the one whose positions the carrier
-phase ties to the anchors is right and the other is wrong, with no truth needed.
+engines agree on) across such spans. Where two engines' fixes part, at most one of them can share the
+anchors' integers, and the carrier phase tells which, with no truth needed.
 """
 
 from __future__ import annotations
