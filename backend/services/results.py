@@ -373,38 +373,44 @@ def check_rmse(points: list[dict]) -> dict | None:
 
 def site_summary(ctx: Ctx, site_id: str) -> dict:
     """One request for the site overview: surveys, latest survey and run, check-point RMSE of the
-    latest run that has residuals, and the net volume of the stockpiles in the latest run with volumes."""
-    from sqlalchemy import func
+    latest run that has residuals, and the net volume of the stockpiles in the latest run with volumes.
+    Two queries (the site with the caller's role, then everything else as subqueries of one row), plus
+    the residual and volume rows where such runs exist."""
+    from sqlalchemy import func, true
 
     from .permissions import require_site
 
     site = require_site(ctx, site_id, "viewer")
-    n_surveys = ctx.db.scalar(select(func.count()).select_from(Survey).where(Survey.site_id == site_id)) or 0
-    latest_survey = ctx.db.scalar(select(Survey).where(Survey.site_id == site_id)
-                                  .order_by(Survey.flown_at.desc().nulls_last(), Survey.created_at.desc()).limit(1))
-    latest_run = ctx.db.scalar(select(Run).where(Run.site_id == site_id).order_by(Run.created_at.desc()).limit(1))
+    n_surveys = select(func.count()).select_from(Survey).where(Survey.site_id == site_id).scalar_subquery()
+    res_run_id = (select(Run.id).join(RunOutput, RunOutput.run_id == Run.id)
+                  .where(Run.site_id == site_id, Run.state == "succeeded",
+                         RunOutput.path.in_(PATHS["residuals_json"] + PATHS["residuals_csv"]))
+                  .order_by(Run.finished_at.desc()).limit(1).scalar_subquery())
+    vol_run_id = (select(Run.id).join(VolumeMeasurement, VolumeMeasurement.run_id == Run.id)
+                  .where(Run.site_id == site_id, Run.state == "succeeded")
+                  .order_by(Run.finished_at.desc()).limit(1).scalar_subquery())
+    ls = (select(Survey.id, Survey.name, Survey.flown_at).where(Survey.site_id == site_id)
+          .order_by(Survey.flown_at.desc().nulls_last(), Survey.created_at.desc()).limit(1).subquery())
+    lr = (select(Run.id, Run.survey_id, Run.number, Run.state, Run.finished_at).where(Run.site_id == site_id)
+          .order_by(Run.created_at.desc()).limit(1).subquery())
+    row = ctx.db.execute(select(n_surveys, res_run_id, vol_run_id, ls.c.id, ls.c.name, ls.c.flown_at, lr.c.id,
+                                lr.c.survey_id, lr.c.number, lr.c.state, lr.c.finished_at)
+                         .select_from(Site).outerjoin(ls, true()).outerjoin(lr, true())
+                         .where(Site.id == site_id)).one()
+    n, res_id, vol_id = row[0], row[1], row[2]
     rmse = None
-    res_run = ctx.db.scalar(select(Run).join(RunOutput, RunOutput.run_id == Run.id)
-                            .where(Run.site_id == site_id, Run.state == "succeeded",
-                                   RunOutput.path.in_(PATHS["residuals_json"] + PATHS["residuals_csv"]))
-                            .order_by(Run.finished_at.desc()).limit(1))
-    if res_run is not None:
-        rmse = check_rmse(residuals_data(ctx, res_run)["points"])
-    vol_run = ctx.db.scalar(select(Run).join(VolumeMeasurement, VolumeMeasurement.run_id == Run.id)
-                            .where(Run.site_id == site_id, Run.state == "succeeded")
-                            .order_by(Run.finished_at.desc()).limit(1))
+    if res_id is not None:
+        rmse = check_rmse(residuals_data(ctx, ctx.db.get(Run, res_id))["points"])
     net = None
-    if vol_run is not None:
-        vols = [v.volume_m3 for v in volumes_rows(ctx.db, vol_run.id) if v.volume_m3 is not None]
+    if vol_id is not None:
+        vols = [v.volume_m3 for v in volumes_rows(ctx.db, vol_id) if v.volume_m3 is not None]
         net = sum(vols) if vols else None
-    return {"site_id": site.id, "surveys": int(n_surveys),
-            "latest_survey": None if latest_survey is None else {
-                "id": latest_survey.id, "name": latest_survey.name, "flown_at": latest_survey.flown_at},
-            "latest_run": None if latest_run is None else {
-                "id": latest_run.id, "survey_id": latest_run.survey_id, "number": latest_run.number,
-                "state": latest_run.state, "finished_at": latest_run.finished_at},
-            "check_rmse_m": rmse, "check_rmse_run_id": res_run.id if res_run else None,
-            "stockpiles_net_m3": net, "volumes_run_id": vol_run.id if vol_run else None,
+    return {"site_id": site.id, "surveys": int(n or 0),
+            "latest_survey": None if row[3] is None else {"id": row[3], "name": row[4], "flown_at": row[5]},
+            "latest_run": None if row[6] is None else {
+                "id": row[6], "survey_id": row[7], "number": row[8], "state": row[9], "finished_at": row[10]},
+            "check_rmse_m": rmse, "check_rmse_run_id": res_id,
+            "stockpiles_net_m3": net, "volumes_run_id": vol_id,
             "tolerance_horizontal_m": site.tolerance_horizontal_m, "tolerance_vertical_m": site.tolerance_vertical_m}
 
 
