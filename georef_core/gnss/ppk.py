@@ -14,6 +14,7 @@ from .base_alignment import align_base_to_rover, base_zero_difference
 from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
+from .fix_continuity import refuse_jumping_fixes
 from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .gnss_time import gps_time_s_to_datetime
 from .input_files import load_navigation, load_observations
@@ -263,18 +264,26 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
     known = np.asarray(opts.known_start_position_ecef_m, dtype=float) if opts.mode == "known-start" else None
     t0 = _time.perf_counter()
     conflicts = None
+    arrays, config = flt.arrays(), flt.config()
+
+    def run_pass(backward: bool, start):
+        # fixes the carrier phase contradicts (a jump against the neighbouring fixes) get their float back
+        return refuse_jumping_fixes(arrays, config, flt.run(backward=backward, known_start_ecef_m=start))[0]
+
     if opts.filter_direction == "forward":
-        out = flt.run(backward=False, known_start_ecef_m=known)
+        out = run_pass(False, known)
     elif opts.filter_direction == "backward":
-        out = flt.run(backward=True)
+        out = run_pass(True, None)
     else:
-        fwd = flt.run(backward=False, known_start_ecef_m=known)
+        fwd = run_pass(False, known)
         back_known = None
         if known is not None:
             fixed = np.nonzero(fwd.status == STATUS_FIX)[0]
             back_known = fwd.position_ecef_m[fixed[-1]] if len(fixed) else None
-        bwd = flt.run(backward=True, known_start_ecef_m=back_known)
+        bwd = run_pass(True, back_known)
         out, conflicts = combine(fwd, bwd)
+        # the two passes' fixes side by side can jump where the combination changes pass
+        out = refuse_jumping_fixes(arrays, config, out)[0]
     timings["filter"] = _time.perf_counter() - t0
     clock_g = spp.clock_bias_m[:, CLOCK_COLUMN["G"]] if spp.clock_bias_m.size else np.zeros(len(data.time_s))
     clock_g = np.where(spp.valid, clock_g, np.nan)

@@ -85,6 +85,8 @@ class FilterOutput:
     ratio: np.ndarray               # (E,)
     residuals_m: np.ndarray         # (E, S, F) post-fit DD phase residuals (NaN = unused/reference)
     n_fixed_amb: np.ndarray         # (E,)
+    float_position_ecef_m: np.ndarray | None = None      # (E, 3) the float solution, fixed epochs included
+    float_covariance_ecef_m2: np.ndarray | None = None   # (E, 3, 3)
 
 
 class RtkFilter:

@@ -559,7 +559,7 @@ def hold(c, x, p, pairs, integers, el):
 def filter_pass(d, c, backward, known, use_known):
     """Run the filter over all epochs (backward: last to first), starting from `known` (3,) ECEF when
     use_known. Returns (status, position (E, 3), covariance (E, 3, 3), n_sats, ratio, residuals (E, S, F),
-    n_fixed_amb)."""
+    n_fixed_amb, float position (E, 3), float covariance (E, 3, 3))."""
     n_e = d.time_s.shape[0]
     n_s, n_f = d.lam.shape
     n_kin = c.n_kin
@@ -571,6 +571,8 @@ def filter_pass(d, c, backward, known, use_known):
     out_ratio = np.zeros(n_e)
     out_res = np.full((n_e, n_s, n_f), np.nan)
     out_n_fix = np.zeros(n_e, np.int16)
+    out_float_pos = np.full((n_e, 3), np.nan)     # the float solution at every epoch (fixed ones included)
+    out_float_cov = np.full((n_e, 3, 3), np.nan)
     x = np.zeros(nx)
     p = np.zeros((nx, nx))
     last_obs = np.full((n_s, n_f), -1, np.int64)          # data index of the last epoch the signal was used
@@ -591,6 +593,8 @@ def filter_pass(d, c, backward, known, use_known):
             out_status[e] = STATUS_SINGLE
             out_pos[e] = d.spp_pos[e]
             out_cov[e] = d.spp_cov[e]
+            out_float_pos[e] = d.spp_pos[e]
+            out_float_cov[e] = d.spp_cov[e]
         if not have_base or c.mode == MODE_SINGLE:
             continue
         # ---------------- time update: position
@@ -700,6 +704,8 @@ def filter_pass(d, c, backward, known, use_known):
         status = STATUS_FLOAT
         pos = x[:3].copy()
         cov = p[:3, :3].copy()
+        out_float_pos[e] = pos
+        out_float_cov[e] = cov
         ratio = 0.0
         n_fix = 0
         x_res = x
@@ -736,4 +742,4 @@ def filter_pass(d, c, backward, known, use_known):
         out_ratio[e] = ratio
         out_n_fix[e] = n_fix
         out_res[e] = phase_residuals(d, c, e, pos, x_res, used & obs_ok)[0]
-    return out_status, out_pos, out_cov, out_n_sats, out_ratio, out_res, out_n_fix
+    return out_status, out_pos, out_cov, out_n_sats, out_ratio, out_res, out_n_fix, out_float_pos, out_float_cov

@@ -48,7 +48,9 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
     way the conflict went)."""
     n = len(fwd.status)
     out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
-                       fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy())
+                       fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy(),
+                       None if fwd.float_position_ecef_m is None else fwd.float_position_ecef_m.copy(),
+                       None if fwd.float_covariance_ecef_m2 is None else fwd.float_covariance_ecef_m2.copy())
     conflict = np.zeros(n, dtype=bool)
     rf, rb = _rank(fwd.status), _rank(bwd.status)
     take_b = rb < rf
@@ -56,8 +58,10 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
     # u-blox walk these were the combined solution's only fixes the carrier phase contradicts (docs/gnss.md)
     take_b &= ~(_lone_fix(bwd.status) & (fwd.status == STATUS_FLOAT))
     take_b |= _lone_fix(fwd.status) & (bwd.status == STATUS_FLOAT)
-    for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb"):
-        getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
+    for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb",
+                 "float_position_ecef_m", "float_covariance_ecef_m2"):
+        if getattr(out, name) is not None and getattr(bwd, name) is not None:
+            getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
     both = (rf == rb) & (fwd.status != STATUS_NONE)
     run_f, run_b = _fixed_run_lengths(fwd.status, False), _fixed_run_lengths(bwd.status, True)
     for e in np.nonzero(both)[0]:

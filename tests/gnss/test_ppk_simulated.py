@@ -579,3 +579,49 @@ def test_anchored_phase_check_separates_true_and_offset_positions(drone_case):
     inside &= np.isfinite(rms_wrong)
     inside[anchors] = False
     assert inside.sum() > 80 and rms_wrong[inside].min() >= 0.02
+
+
+def test_fix_continuity_refuses_a_short_wrong_fix_and_nothing_else(drone_case):
+    """fix_continuity.refuse_jumping_fixes on a forward pass of the simulated flight: the correct fixes are
+    left as they are; a wrong fix put in by hand (5 epochs offset by 5 cm between correct fixes) gets its
+    float solution back, and only it; a jump between two long runs is left alone (nothing tells which is
+    wrong)."""
+    import dataclasses
+
+    from georef_core.gnss.fix_continuity import MAX_REFUSED_RUN, refuse_jumping_fixes
+
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    data = prepare(sv.rover, sv.base, nav, opts)[0]
+    flt = RtkFilter(data, opts)
+    arrays, config = flt.arrays(), flt.config()
+    clean = flt.run()
+    fixed = np.nonzero(clean.status == STATUS_FIX)[0]
+    assert len(fixed) > 500
+    out, refused = refuse_jumping_fixes(arrays, config, dataclasses.replace(clean, status=clean.status.copy()))
+    assert refused == 0
+
+    offset = _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
+    start = fixed[len(fixed) // 2]
+    assert np.all(clean.status[start - 3:start + 8] == STATUS_FIX)
+    wrong = dataclasses.replace(clean, status=clean.status.copy(), position_ecef_m=clean.position_ecef_m.copy(),
+                                covariance_ecef_m2=clean.covariance_ecef_m2.copy(), n_fixed_amb=clean.n_fixed_amb.copy())
+    wrong.position_ecef_m[start:start + 5] += offset
+    out, refused = refuse_jumping_fixes(arrays, config, wrong)
+    assert refused == 5
+    assert np.all(out.status[start:start + 5] == 2) and np.sum(out.status != clean.status) == 5
+    np.testing.assert_array_equal(out.position_ecef_m[start:start + 5], clean.float_position_ecef_m[start:start + 5])
+
+    long_wrong = dataclasses.replace(clean, status=clean.status.copy(), position_ecef_m=clean.position_ecef_m.copy(),
+                                     covariance_ecef_m2=clean.covariance_ecef_m2.copy(),
+                                     n_fixed_amb=clean.n_fixed_amb.copy())
+    run_end = start + 1
+    while run_end < len(clean.status) and clean.status[run_end] == STATUS_FIX:
+        run_end += 1
+    run_begin = start
+    while run_begin > 0 and clean.status[run_begin - 1] == STATUS_FIX:
+        run_begin -= 1
+    assert run_end - start > MAX_REFUSED_RUN and start - run_begin > MAX_REFUSED_RUN
+    long_wrong.position_ecef_m[start:run_end] += offset      # two long runs meeting at `start`
+    out, refused = refuse_jumping_fixes(arrays, config, long_wrong)
+    assert refused == 0

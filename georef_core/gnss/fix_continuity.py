@@ -1,0 +1,115 @@
+"""Fixes that the carrier phase contradicts, refused after a filter pass (compiled with numba).
+
+Between two consecutive fixed epochs the change of every double-differenced phase residual depends on the
+two positions only (the integers cancel when no slip happened): millimetres for two correct fixes,
+centimetres to decimetres where one of them holds a wrong integer (phase_consistency.py explains the
+check and shows it on simulated and real data). Where a pass's fixed positions jump like that, the
+shorter of the two fixed runs that meet there is the suspect one: a fresh fix that disagrees with a long
+consistent run, or a brief run between floats. Runs up to MAX_REFUSED_RUN epochs are given back their
+float solution (status float); a jump between two longer runs is left alone (nothing tells which one is
+wrong). The pass is checked again until no jump remains that can be resolved.
+
+On the u-blox walk of shared/data this removes the three wrong fixes of our continuous-mode solutions
+that no anchor reaches (56-145 mm jumps, docs/gnss.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .rtk_filter import STATUS_FIX, STATUS_FLOAT, FilterOutput
+from .rtk_kernels import phase_residuals
+
+JUMP_THRESHOLD_M = 0.04    # RMS change of the DD phase residuals between two consecutive fixed epochs
+MAX_REFUSED_RUN = 10       # fixed runs up to this many epochs may be refused
+MIN_SIGNALS = 5            # signals tracked without a slip over both epochs, references included
+
+
+@njit(cache=True)
+def consecutive_jump_rms(d, c, fixed, pos):
+    """(E,) RMS (m) of the change of the DD phase residuals between epoch e - 1 and e, both fixed, at their
+    positions; NaN where not both fixed or fewer than MIN_SIGNALS signals are tracked without a slip."""
+    n_e = fixed.shape[0]
+    n_s, n_f = d.lam.shape
+    out = np.full(n_e, np.nan)
+    zero = np.zeros(c.n_kin + n_s * n_f)
+    for e in range(1, n_e):
+        if not (fixed[e - 1] and fixed[e]):
+            continue
+        ok = d.obs_ok[e - 1] & d.obs_ok[e]
+        n_ok = 0
+        for s in range(n_s):
+            for b in range(n_f):
+                if d.slip_cum[e + 1, s, b] != d.slip_cum[e, s, b]:
+                    ok[s, b] = False
+                if ok[s, b]:
+                    n_ok += 1
+        if n_ok < MIN_SIGNALS:
+            continue
+        r0 = phase_residuals(d, c, e - 1, pos[e - 1], zero, ok)[0]
+        r1 = phase_residuals(d, c, e, pos[e], zero, ok)[0]
+        acc = 0.0
+        n = 0
+        for b in range(n_f):
+            for sys in range(c.n_systems):
+                ref = -1
+                for s in range(n_s):
+                    if d.sys_code[s] != sys or np.isnan(r0[s, b]) or np.isnan(r1[s, b]):
+                        continue
+                    if ref < 0:
+                        ref = s
+                        continue
+                    dv = (r1[s, b] - r1[ref, b]) - (r0[s, b] - r0[ref, b])
+                    acc += dv * dv
+                    n += 1
+        if n > 0:
+            out[e] = np.sqrt(acc / n)
+    return out
+
+
+def _fixed_runs(fixed: np.ndarray, jump: np.ndarray) -> np.ndarray:
+    """Run id per epoch: consecutive fixed epochs without a jump between them share one (-1 elsewhere)."""
+    run = np.full(len(fixed), -1, dtype=np.int64)
+    current = -1
+    for e in range(len(fixed)):
+        if not fixed[e]:
+            continue
+        if e == 0 or not fixed[e - 1] or jump[e]:
+            current += 1
+        run[e] = current
+    return run
+
+
+def refuse_jumping_fixes(d, c, out: FilterOutput, threshold_m: float = JUMP_THRESHOLD_M,
+                         max_run: int = MAX_REFUSED_RUN) -> tuple[FilterOutput, int]:
+    """`out` with the fixed runs the carrier phase contradicts given back their float solution (in place),
+    and the number of epochs refused. d, c: the pass's FilterArrays and FilterConfig."""
+    if out.float_position_ecef_m is None:
+        return out, 0
+    refused = 0
+    for _ in range(50):
+        fixed = out.status == STATUS_FIX
+        if not fixed.any():
+            break
+        rms = consecutive_jump_rms(d, c, fixed, np.ascontiguousarray(out.position_ecef_m))
+        jump = np.nan_to_num(rms, nan=0.0) > threshold_m
+        if not jump.any():
+            break
+        run = _fixed_runs(fixed, jump)
+        length = np.bincount(run[run >= 0])
+        drop = set()
+        for e in np.nonzero(jump)[0]:
+            a, b = run[e - 1], run[e]
+            shorter = a if length[a] <= length[b] else b
+            if length[shorter] <= max_run:
+                drop.add(int(shorter))
+        if not drop:
+            break
+        epochs = np.nonzero(np.isin(run, list(drop)))[0]
+        out.status[epochs] = STATUS_FLOAT
+        out.position_ecef_m[epochs] = out.float_position_ecef_m[epochs]
+        out.covariance_ecef_m2[epochs] = out.float_covariance_ecef_m2[epochs]
+        out.n_fixed_amb[epochs] = 0
+        refused += len(epochs)
+    return out, refused
