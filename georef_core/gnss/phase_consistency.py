@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .fix_continuity import consecutive_jump_rms
 from .rtk_filter import PreparedData, RtkFilter
 from .rtk_kernels import phase_residuals
 from .rtk_options import RtkOptions
 
-MIN_SIGNALS = 5            # satellites (signals) tracked without a slip over both epochs, references included
 JUMP_THRESHOLD_M = 0.02    # RMS change beyond which a pair of epochs is called inconsistent
 MIN_SPAN_SIGNALS = 6       # signals tracked without a gap or slip over a whole span to an anchor
 MAX_ANCHORS = 5            # anchors per epoch (the nearest in time with enough signals)
@@ -31,24 +31,11 @@ def epoch_pair_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.n
                      valid: np.ndarray) -> np.ndarray:
     """(E,) RMS (m) over the double differences of the change of DD phase residual between epoch e - 1 at
     position_ecef_m[e - 1] and epoch e at position_ecef_m[e]; NaN where either epoch is not `valid` or
-    fewer than MIN_SIGNALS signals are tracked without a slip over both."""
+    fewer than fix_continuity.MIN_SIGNALS signals are tracked without a slip over both (the compiled check the engine
+    itself uses to refuse fixes, fix_continuity.consecutive_jump_rms)."""
     flt = RtkFilter(data, opts)
-    d, cfg = flt.arrays(), flt.config()
-    n_e = len(d.time_s)
-    out = np.full(n_e, np.nan)
-    zero_amb = np.zeros(cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
-    for e in range(1, n_e):
-        if not (valid[e - 1] and valid[e]):
-            continue
-        ok = d.obs_ok[e - 1] & d.obs_ok[e] & (d.slip_cum[e + 1] == d.slip_cum[e])
-        if ok.sum() < MIN_SIGNALS:
-            continue
-        r0 = phase_residuals(d, cfg, e - 1, np.asarray(position_ecef_m[e - 1], float), zero_amb, ok)[0]
-        r1 = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
-        change = _rereferenced_change(r0, r1, d.sys_code)
-        if change.size:
-            out[e] = float(np.sqrt(np.mean(change**2)))
-    return out
+    pos = np.ascontiguousarray(np.nan_to_num(np.asarray(position_ecef_m, dtype=float)))
+    return consecutive_jump_rms(flt.arrays(), flt.config(), np.asarray(valid, dtype=bool), pos)
 
 
 def _rereferenced_change(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarray) -> np.ndarray:
