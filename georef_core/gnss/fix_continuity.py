@@ -6,7 +6,8 @@ centimetres to decimetres where one of them holds a wrong integer (phase_consist
 check and shows it on simulated and real data). Where a pass's fixed positions jump like that, the
 shorter of the two fixed runs that meet there is the suspect one: a fresh fix that disagrees with a long
 consistent run, or a brief run between floats. Runs up to MAX_REFUSED_RUN epochs are given back their
-float solution (status float); a jump between two longer runs is left alone (nothing tells which one is
+float solution (status float; in the combined solution the covariance-weighted mean of both passes'
+floats, smoothing.combine); a jump between two longer runs is left alone (nothing tells which one is
 wrong). The pass is checked again until no jump remains that can be resolved.
 
 On the u-blox walk of shared/data this removes the three wrong fixes of our continuous-mode solutions

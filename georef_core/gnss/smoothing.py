@@ -33,6 +33,28 @@ def _lone_fix(status: np.ndarray) -> np.ndarray:
     return fixed & ~before & ~after
 
 
+def _combined_float(fwd: FilterOutput, bwd: FilterOutput) -> tuple[np.ndarray, np.ndarray]:
+    """The two passes' float solutions combined per epoch (covariance-weighted mean where both exist, else
+    the one that does): what an epoch falls back to when its combined fix is refused (fix_continuity)."""
+    xf, xb = fwd.float_position_ecef_m, bwd.float_position_ecef_m
+    qf, qb = fwd.float_covariance_ecef_m2, bwd.float_covariance_ecef_m2
+    has_f = np.isfinite(xf).all(axis=1) & np.isfinite(qf).all(axis=(1, 2))
+    has_b = np.isfinite(xb).all(axis=1) & np.isfinite(qb).all(axis=(1, 2))
+    x = np.where(has_f[:, None], xf, xb).copy()
+    q = np.where(has_f[:, None, None], qf, qb).copy()
+    both = np.nonzero(has_f & has_b)[0]
+    if len(both):
+        try:
+            wf, wb = np.linalg.inv(qf[both]), np.linalg.inv(qb[both])
+            q_both = np.linalg.inv(wf + wb)
+        except np.linalg.LinAlgError:
+            return x, q
+        rhs = (wf @ xf[both][..., None] + wb @ xb[both][..., None])
+        x[both] = (q_both @ rhs)[..., 0]
+        q[both] = q_both
+    return x, q
+
+
 def _rank(status: np.ndarray) -> np.ndarray:
     """Lower is better: fix 1 < float 2 < single 5; none is worst."""
     return np.where(status == STATUS_NONE, 99, status)
@@ -58,10 +80,10 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
     # u-blox walk these were the combined solution's only fixes the carrier phase contradicts (docs/gnss.md)
     take_b &= ~(_lone_fix(bwd.status) & (fwd.status == STATUS_FLOAT))
     take_b |= _lone_fix(fwd.status) & (bwd.status == STATUS_FLOAT)
-    for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb",
-                 "float_position_ecef_m", "float_covariance_ecef_m2"):
-        if getattr(out, name) is not None and getattr(bwd, name) is not None:
-            getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
+    for name in ("status", "position_ecef_m", "covariance_ecef_m2", "n_sats", "ratio", "residuals_m", "n_fixed_amb"):
+        getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
+    if fwd.float_position_ecef_m is not None and bwd.float_position_ecef_m is not None:
+        out.float_position_ecef_m, out.float_covariance_ecef_m2 = _combined_float(fwd, bwd)
     both = (rf == rb) & (fwd.status != STATUS_NONE)
     run_f, run_b = _fixed_run_lengths(fwd.status, False), _fixed_run_lengths(bwd.status, True)
     for e in np.nonzero(both)[0]:

@@ -103,3 +103,21 @@ def test_combined_solution_does_not_take_a_lone_fix_against_a_float():
     np.testing.assert_array_equal(out.position_ecef_m[1], np.zeros(3))     # forward's float at the lone fix
     np.testing.assert_array_equal(out.position_ecef_m[3], np.zeros(3))     # forward's run of two fixes
     np.testing.assert_array_equal(out.position_ecef_m[6], np.ones(3))      # forward's lone fix at the end
+
+
+def test_combined_solution_keeps_the_smoothed_float_beside_the_fix():
+    """The combined output's float solution (what a refused fix falls back to) is the covariance-weighted
+    mean of the two passes' floats where both exist, else the one that exists."""
+    f, x = STATUS_FLOAT, STATUS_FIX
+    fwd = _output([x, x, f], np.zeros((3, 3)))
+    bwd = _output([x, f, f], np.ones((3, 3)))
+    fwd.float_position_ecef_m = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [np.nan, np.nan, np.nan]])
+    fwd.float_covariance_ecef_m2 = np.stack([np.eye(3) * 1.0, np.eye(3) * 1.0, np.full((3, 3), np.nan)])
+    bwd.float_position_ecef_m = np.array([[3.0, 3.0, 3.0], [4.0, 4.0, 4.0], [5.0, 5.0, 5.0]])
+    bwd.float_covariance_ecef_m2 = np.stack([np.eye(3) * 3.0, np.eye(3) * 1.0, np.eye(3) * 2.0])
+    out, _ = combine(fwd, bwd)
+    np.testing.assert_allclose(out.float_position_ecef_m[0], [0.75] * 3)      # weights 1 and 1/3
+    np.testing.assert_allclose(out.float_covariance_ecef_m2[0], np.eye(3) * 0.75)
+    np.testing.assert_allclose(out.float_position_ecef_m[1], [2.5] * 3)
+    np.testing.assert_allclose(out.float_position_ecef_m[2], [5.0] * 3)       # backward's only
+    np.testing.assert_allclose(out.float_covariance_ecef_m2[2], np.eye(3) * 2.0)
