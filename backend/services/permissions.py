@@ -6,6 +6,7 @@ enumeration); a role too low, or a token without the scope, answers Forbidden.""
 from __future__ import annotations
 
 from sqlalchemy import and_, select
+from sqlalchemy.orm import defer
 
 from ..core.problems import Forbidden, NotFound, Unauthorized
 from ..models import Run, RunOutput, Schedule, Site, SiteRole, Stockpile, Survey, Upload, Webhook
@@ -79,7 +80,10 @@ def require_run_with_outputs(ctx: Ctx, run_id: str, paths: tuple[str, ...],
     endpoints that GIS systems poll need one round trip to the database instead of two."""
     if ctx.principal is None:
         raise Unauthorized("authentication required")
+    # the run's JSON columns are not read by the result endpoints (its inputs list every image of the
+    # survey: tens of kilobytes to parse on each poll); they load on first access where needed
     rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
+                          .options(defer(Run.inputs), defer(Run.settings), defer(Run.changes))
                           .outerjoin(SiteRole, and_(SiteRole.site_id == Run.site_id,
                                                     SiteRole.user_id == ctx.principal.user.id))
                           .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
