@@ -22,10 +22,10 @@ from .navigation import NavigationData
 from .observations import ObservationSet, RawObservations, select_bands
 from .rtk_filter import STATUS_FIX, STATUS_NONE, PreparedData, RtkFilter
 from .rtk_options import RtkOptions
-from .satellite_geometry import compute_observed_satellites
+from .satellite_geometry import compute_observed_satellites, geometric_range_m
 from .smoothing import combine
 from .spp import CLOCK_COLUMN, SppResult, solve_spp
-from .tdcp_slips import single_difference_model_m, time_differenced_slips
+from .tdcp_slips import time_differenced_slips
 
 
 @dataclass
@@ -104,7 +104,7 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
 def _unflagged_slips(rover, rsat, position_ecef_m, trop_m, iono_m, lam, base_phase_res_m, flagged, sat_ids,
                      threshold_m):
     """Slips neither receiver flagged, from the time-differenced single-difference phase (tdcp_slips)."""
-    rng, los = single_difference_model_m(position_ecef_m, np.nan_to_num(rsat.position_ecef_m))
+    rng, los = geometric_range_m(np.nan_to_num(rsat.position_ecef_m), position_ecef_m[:, None, :])
     model = rng - CLIGHT_M_S * np.nan_to_num(rsat.clock_bias_s) + trop_m
     sd = rover.phase_cyc * lam[None] - (model[..., None] - iono_m) - base_phase_res_m
     sd[~rsat.valid] = np.nan

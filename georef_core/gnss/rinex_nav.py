@@ -42,6 +42,7 @@ from .compressed_files import read_text
 from .ephemeris import MAX_EPHEMERIS_AGE_S
 from .gnss_time import (
     BDS_MINUS_GPS_S,
+    calendar_to_gps_time_s,
     leap_seconds_at,
     resolve_tow_near,
 )
@@ -313,10 +314,8 @@ def _iter_records(lines: list[str], header: _Header, path: Path,
         # unreadable epochs are kept: their record is then parsed and the error reported with its line
         keep = ~readable | ((epoch_s >= t0 - margin) & (epoch_s <= t1 + margin))
         if stats is not None and readable.any():
-            stats["skipped"] = stats.get("skipped", 0) + int((~keep).sum())
-            lo, hi = float(epoch_s[readable].min()), float(epoch_s[readable].max())
-            old = stats.get("span_gps_s")
-            stats["span_gps_s"] = (lo, hi) if old is None else (min(old[0], lo), max(old[1], hi))
+            stats["skipped"] = int((~keep).sum())
+            stats["span_gps_s"] = (float(epoch_s[readable].min()), float(epoch_s[readable].max()))
         if not keep.all():
             idx = np.flatnonzero(keep)
             spans = [spans[k] for k in idx]
@@ -357,14 +356,7 @@ def _record_epochs_s(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray, rec_
     if not v3:
         year = np.where(year < 80, year + 2000, year + 1900)
     readable &= (month >= 1) & (month <= 12) & (day >= 1) & (day <= 31)
-    # days from the civil date (proleptic Gregorian), relative to 1980-01-06
-    y = year - (month <= 2)
-    era = y // 400
-    yoe = y - era * 400
-    doy = (153 * (month + np.where(month > 2, -3, 9)) + 2) // 5 + day - 1
-    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
-    days = era * 146097 + doe - 719468 - 3657      # 1970-01-01 is day 0; 1980-01-06 is day 3657
-    return days * 86400.0 + hour * 3600.0 + minute * 60.0 + second, readable
+    return np.asarray(calendar_to_gps_time_s(year, month, day, hour, minute, second), dtype=float), readable
 
 
 def _parse_record(first: str, body: list[str], lineno: int, system: str, v3: bool, path: Path,

@@ -18,22 +18,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .constants import CLIGHT_M_S, OMEGA_EARTH_RAD_S
 
 DEFAULT_THRESHOLD_M = 0.05   # residual beyond which a signal is called slipped (a quarter cycle on L1)
 MIN_SIGNALS = 6              # signals an epoch pair needs for the fit to be checked at all
 MAX_GAP_S = 30.0             # epoch pairs further apart are not checked (satellite motion, atmosphere)
-
-
-def single_difference_model_m(position_ecef_m: np.ndarray, sat_pos_ecef_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Geometric range with the Sagnac term (E, S) from `position_ecef_m` (E, 3) to the satellites
-    (E, S, 3), and the unit vectors receiver -> satellite (E, S, 3)."""
-    delta = sat_pos_ecef_m - position_ecef_m[:, None, :]
-    rng = np.linalg.norm(delta, axis=2)
-    los = delta / rng[..., None]
-    sagnac = OMEGA_EARTH_RAD_S * (sat_pos_ecef_m[..., 0] * position_ecef_m[:, None, 1]
-                                  - sat_pos_ecef_m[..., 1] * position_ecef_m[:, None, 0]) / CLIGHT_M_S
-    return rng + sagnac, los
 
 
 def time_differenced_slips(time_s: np.ndarray, sd_phase_m: np.ndarray, los: np.ndarray, sys_code: np.ndarray,
