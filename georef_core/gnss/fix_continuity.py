@@ -50,23 +50,31 @@ def consecutive_jump_rms(d, c, fixed, pos):
             continue
         r0 = phase_residuals(d, c, e - 1, pos[e - 1], zero, ok)[0]
         r1 = phase_residuals(d, c, e, pos[e], zero, ok)[0]
-        acc = 0.0
-        n = 0
-        for b in range(n_f):
-            for sys in range(c.n_systems):
-                ref = -1
-                for s in range(n_s):
-                    if d.sys_code[s] != sys or np.isnan(r0[s, b]) or np.isnan(r1[s, b]):
-                        continue
-                    if ref < 0:
-                        ref = s
-                        continue
-                    dv = (r1[s, b] - r1[ref, b]) - (r0[s, b] - r0[ref, b])
-                    acc += dv * dv
-                    n += 1
-        if n > 0:
-            out[e] = np.sqrt(acc / n)
+        out[e] = dd_change_rms(r0, r1, d.sys_code, c.n_systems)
     return out
+
+
+@njit(cache=True)
+def dd_change_rms(r0, r1, sys_code, n_systems):
+    """RMS (m) of the change of the DD residuals (S, F) from r0 to r1, both re-referenced, per system and
+    band, to the first satellite present in both (the two epochs may have chosen different reference
+    satellites); NaN when no double difference is left."""
+    n_s, n_f = r0.shape
+    acc = 0.0
+    n = 0
+    for b in range(n_f):
+        for sys in range(n_systems):
+            ref = -1
+            for s in range(n_s):
+                if sys_code[s] != sys or np.isnan(r0[s, b]) or np.isnan(r1[s, b]):
+                    continue
+                if ref < 0:
+                    ref = s
+                    continue
+                dv = (r1[s, b] - r1[ref, b]) - (r0[s, b] - r0[ref, b])
+                acc += dv * dv
+                n += 1
+    return np.sqrt(acc / n) if n > 0 else np.nan
 
 
 def _fixed_runs(fixed: np.ndarray, jump: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fix_continuity import consecutive_jump_rms
+from .fix_continuity import consecutive_jump_rms, dd_change_rms
 from .rtk_filter import PreparedData, RtkFilter
 from .rtk_kernels import phase_residuals
 from .rtk_options import RtkOptions
@@ -36,21 +36,6 @@ def epoch_pair_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.n
     flt = RtkFilter(data, opts)
     pos = np.ascontiguousarray(np.nan_to_num(np.asarray(position_ecef_m, dtype=float)))
     return consecutive_jump_rms(flt.arrays(), flt.config(), np.asarray(valid, dtype=bool), pos)
-
-
-def _rereferenced_change(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarray) -> np.ndarray:
-    """Change of the DD residuals (S, F) from r0 to r1, both re-referenced, per system and band, to one
-    satellite present in both (the two epochs may have chosen different reference satellites)."""
-    parts = []
-    for b in range(r0.shape[1]):
-        for sys in np.unique(sys_code):
-            both = np.nonzero((sys_code == sys) & ~np.isnan(r0[:, b]) & ~np.isnan(r1[:, b]))[0]
-            if both.size < 2:
-                continue
-            k = both[0]
-            rest = both[1:]
-            parts.append((r1[rest, b] - r1[k, b]) - (r0[rest, b] - r0[k, b]))
-    return np.concatenate(parts) if parts else np.empty(0)
 
 
 def inconsistent_fixed_epochs(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray,
@@ -96,9 +81,9 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
                 continue
             r_a = phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]
             r_e = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
-            change = _rereferenced_change(r_a, r_e, d.sys_code)
-            if change.size:
-                rms.append(float(np.sqrt(np.mean(change**2))))
+            change = dd_change_rms(r_a, r_e, d.sys_code, cfg.n_systems)
+            if np.isfinite(change):
+                rms.append(float(change))
             if len(rms) == max_anchors:
                 break
         if rms:
