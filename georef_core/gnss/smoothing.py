@@ -70,9 +70,7 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
     way the conflict went)."""
     n = len(fwd.status)
     out = FilterOutput(fwd.status.copy(), fwd.position_ecef_m.copy(), fwd.covariance_ecef_m2.copy(), fwd.n_sats.copy(),
-                       fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy(),
-                       None if fwd.float_position_ecef_m is None else fwd.float_position_ecef_m.copy(),
-                       None if fwd.float_covariance_ecef_m2 is None else fwd.float_covariance_ecef_m2.copy())
+                       fwd.ratio.copy(), fwd.residuals_m.copy(), fwd.n_fixed_amb.copy())
     conflict = np.zeros(n, dtype=bool)
     rf, rb = _rank(fwd.status), _rank(bwd.status)
     take_b = rb < rf
