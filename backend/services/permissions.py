@@ -38,13 +38,16 @@ def _check(ctx: Ctx, have: str | None, role: str, what: str) -> None:
         raise Forbidden(f"this needs the {role} role on the site; you are {have}")
 
 
+def _caller_role_on(ctx: Ctx, site_col):
+    """Join condition of the caller's SiteRole row on the site in `site_col` (for an outer join)."""
+    return and_(SiteRole.site_id == site_col, SiteRole.user_id == ctx.principal.user.id)
+
+
 def _with_role(ctx: Ctx, model, obj_id: str, site_col):
     """(object, caller's role on its site) in one query; (None, None) when the object does not exist."""
     if not obj_id:
         return None, None
-    row = ctx.db.execute(select(model, SiteRole.role)
-                         .outerjoin(SiteRole, and_(SiteRole.site_id == site_col,
-                                                   SiteRole.user_id == ctx.principal.user.id))
+    row = ctx.db.execute(select(model, SiteRole.role).outerjoin(SiteRole, _caller_role_on(ctx, site_col))
                          .where(model.id == obj_id)).first()
     return (row[0], row[1]) if row is not None else (None, None)
 
@@ -84,8 +87,7 @@ def require_run_with_outputs(ctx: Ctx, run_id: str, paths: tuple[str, ...],
     # survey: tens of kilobytes to parse on each poll); they load on first access where needed
     rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
                           .options(defer(Run.inputs), defer(Run.settings), defer(Run.changes))
-                          .outerjoin(SiteRole, and_(SiteRole.site_id == Run.site_id,
-                                                    SiteRole.user_id == ctx.principal.user.id))
+                          .outerjoin(SiteRole, _caller_role_on(ctx, Run.site_id))
                           .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
                           .where(Run.id == run_id)).all() if run_id else []
     run, have = (rows[0][0], rows[0][1]) if rows else (None, None)

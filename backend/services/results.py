@@ -384,7 +384,7 @@ def site_summary(ctx: Ctx, site_id: str) -> dict:
     n_surveys = select(func.count()).select_from(Survey).where(Survey.site_id == site_id).scalar_subquery()
     res_run_id = (select(Run.id).join(RunOutput, RunOutput.run_id == Run.id)
                   .where(Run.site_id == site_id, Run.state == "succeeded",
-                         RunOutput.path.in_(PATHS["residuals_json"] + PATHS["residuals_csv"]))
+                         RunOutput.path.in_(_RESIDUAL_PATHS))
                   .order_by(Run.finished_at.desc()).limit(1).scalar_subquery())
     vol_run_id = (select(Run.id).join(VolumeMeasurement, VolumeMeasurement.run_id == Run.id)
                   .where(Run.site_id == site_id, Run.state == "succeeded")
