@@ -40,6 +40,9 @@ def register(sub) -> None:
     p.add_argument("--tdcp-slips", type=float, metavar="M",
                    help="threshold of the check for slips the receivers did not flag (time-differenced carrier "
                         "phase), m (default 0.05; 0 = off)")
+    p.add_argument("--hold-variance", type=float, metavar="CYC2",
+                   help="fix-and-hold: variance of the held ambiguities, cycles^2 (default 0.1 as demo5; "
+                        "0.001 as RTKLIB 2.4.3)")
     p.add_argument("--events", help="CSV of camera trigger times (column gps_time_s); default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -94,6 +97,8 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
         changes["base_interpolation"] = False
     if args.tdcp_slips is not None:
         changes["slip_tdcp_threshold_m"] = args.tdcp_slips
+    if args.hold_variance is not None:
+        changes["hold_variance_cyc2"] = args.hold_variance
     opts = opts.replace(**changes)
     try:
         opts.validate()

@@ -159,6 +159,7 @@ class RtkFilter:
             ar_elevation_mask_rad=float(np.radians(o.ar_elevation_mask_deg)),
             ar_min_fix_to_hold=int(o.ar_min_fix_to_hold),
             hold_elevation_mask_rad=float(np.radians(o.hold_elevation_mask_deg)),
+            hold_variance_cyc2=float(o.hold_variance_cyc2), ar_filter=bool(o.ar_filter),
             partial_ar=bool(o.partial_ar), partial_ar_max_drop=int(o.partial_ar_max_drop),
             partial_ar_max_float_sigma_m=float(o.partial_ar_max_float_sigma_m),
             min_ambiguities_to_fix=int(o.min_ambiguities_to_fix), phase_error_a_m=float(o.phase_error_a_m),

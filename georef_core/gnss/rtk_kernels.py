@@ -22,12 +22,12 @@ MODE_KINEMATIC, MODE_STATIC, MODE_KNOWN_START, MODE_SINGLE = 0, 1, 2, 3
 DYNAMICS_OFF, DYNAMICS_RANDOM_WALK, DYNAMICS_CONSTANT_VELOCITY = 0, 1, 2
 AR_OFF, AR_CONTINUOUS, AR_INSTANTANEOUS, AR_FIX_AND_HOLD = 0, 1, 2, 3
 VAR_POS_INIT_M2 = 30.0**2
-VAR_HOLD_AMB_CYC2 = 0.001
 VAR_KNOWN_AMB_CYC2 = 1e-6
 MAX_RESETS = 3               # re-initialisations per epoch after post-fit phase residual tests
 CULPRIT_SIGMA = 5.0          # post-fit DD phase residual test
 FIX_RESIDUAL_SIGMA = 4.0     # fixed-solution DD phase residual test
 FIX_ATTEMPTS = 3             # AR attempts per epoch (each excluding the worst signal of the previous one)
+ENTRANT_RATIO_FACTOR = 1.1   # ar_filter: a fix taking in new signals needs ratio >= this x threshold or >= half the last
 KNOWN_START_MAX_FRACTION_CYC = 0.2
 
 FilterArrays = namedtuple("FilterArrays", [
@@ -62,7 +62,8 @@ FilterConfig = namedtuple("FilterConfig", [
     "n_systems", "n_kin", "mode", "dynamics", "ar_mode", "max_age_s", "outage_reset_epochs",
     "bias_process_noise_cyc", "initial_bias_var_cyc2", "known_start_var_m2", "position_rw_q", "accel_q",
     "reject_innovation_m", "ratio_threshold", "min_success_rate", "ar_min_lock_epochs", "ar_elevation_mask_rad",
-    "ar_min_fix_to_hold", "hold_elevation_mask_rad", "partial_ar", "partial_ar_max_drop",
+    "ar_min_fix_to_hold", "hold_elevation_mask_rad", "hold_variance_cyc2", "ar_filter", "partial_ar",
+    "partial_ar_max_drop",
     "partial_ar_max_float_sigma_m", "min_ambiguities_to_fix", "phase_error_a_m", "phase_error_b_m",
     "code_phase_ratio", "baseline_term_m", "clock_stability", "glonass_error_factor",
 ])
@@ -514,7 +515,10 @@ def resolve_epoch(d, c, e, x, p, used, obs_ok, lock):
 
 @njit(cache=True)
 def hold(c, x, p, pairs, integers, el):
-    """Fix-and-hold: the fixed DD ambiguities become observations of the float filter (variance 0.001 cyc^2)."""
+    """Fix-and-hold: the fixed DD ambiguities become observations of the float filter with variance
+    c.hold_variance_cyc2 (RTKLIB 2.4.3: 0.001 cycles^2, which pins the float values to the integers; demo5:
+    0.1, which lets them follow the data, so that a signal whose phase misfits the held ones by a few
+    centimetres shows it in its own float value and ratio instead of being pulled onto an integer)."""
     n_f = (p.shape[0] - c.n_kin) // el.shape[0]
     keep = np.zeros(pairs.shape[0], np.bool_)
     for k in range(pairs.shape[0]):
@@ -537,7 +541,7 @@ def hold(c, x, p, pairs, integers, el):
     for q in range(m):
         for w in range(m):
             s_mat[q, w] = hp[q, pos_in[pairs[rows[w], 0]]] - hp[q, pos_in[pairs[rows[w], 1]]]
-        s_mat[q, q] += VAR_HOLD_AMB_CYC2
+        s_mat[q, q] += c.hold_variance_cyc2
     kt = np.linalg.solve(s_mat, hp)
     dx = kt.T @ v
     kh = kt.T @ hp
@@ -581,6 +585,9 @@ def filter_pass(d, c, backward, known, use_known):
     los = np.empty((n_s, 3))
     pos_initialised = False
     fix_count = 0
+    prev_fixed = False
+    prev_ratio = 0.0
+    prev_fix_set = np.zeros((n_s, n_f), np.bool_)
     have_prev = False
     prev_t = 0.0
     known_done = False
@@ -713,10 +720,23 @@ def filter_pass(d, c, backward, known, use_known):
         if c.ar_mode != AR_OFF:
             excluded = np.zeros((n_s, n_f), np.bool_)
             accepted = False
-            for attempt in range(FIX_ATTEMPTS):
+            entrants_checked = not (c.ar_filter and prev_fixed)
+            attempt = 0
+            while attempt < FIX_ATTEMPTS:
                 fixed, fix_ratio, x_fixed, cov_fixed, pairs, integers = resolve_epoch(
                     d, c, e, x, p, used & ~excluded, obs_ok, lock)
                 ratio = fix_ratio if attempt == 0 else max(ratio, fix_ratio)
+                if not entrants_checked:
+                    # signals the last epoch's fix did not hold (risen, re-acquired, after a slip) that
+                    # bring a sound fix down to a marginal one are left float for now (demo5's arfilter;
+                    # only on success: leaving them out of a failed search gave wrong fixes on the walk)
+                    entrants_checked = True
+                    if fixed and fix_ratio < ENTRANT_RATIO_FACTOR * c.ratio_threshold and fix_ratio < 0.5 * prev_ratio:
+                        entrants = used & ~excluded & ~prev_fix_set
+                        if entrants.any():
+                            excluded |= entrants
+                            continue
+                attempt += 1
                 if not fixed:
                     break
                 s_w, b_w = validate_fix(d, c, e, x_fixed, used & ~excluded)
@@ -724,6 +744,9 @@ def filter_pass(d, c, backward, known, use_known):
                     accepted = True
                     break
                 excluded[s_w, b_w] = True
+            prev_fix_set[:, :] = False
+            prev_fixed = accepted
+            prev_ratio = fix_ratio if accepted else 0.0
             if accepted:
                 status = STATUS_FIX
                 pos = x_fixed[:3].copy()
@@ -731,6 +754,9 @@ def filter_pass(d, c, backward, known, use_known):
                 n_fix = pairs.shape[0]
                 x_res = x_fixed
                 fix_count += 1
+                for k in range(pairs.shape[0]):
+                    for i in (pairs[k, 0], pairs[k, 1]):
+                        prev_fix_set[(i - n_kin) // n_f, (i - n_kin) % n_f] = True
                 if c.ar_mode == AR_FIX_AND_HOLD and fix_count >= c.ar_min_fix_to_hold:
                     hold(c, x, p, pairs, integers, d.el[e])
             else:

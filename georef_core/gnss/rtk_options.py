@@ -31,6 +31,8 @@ class RtkOptions:
     ar_elevation_mask_deg: float = 0.0
     ar_min_fix_to_hold: int = 10
     hold_elevation_mask_deg: float = 0.0
+    hold_variance_cyc2: float = 0.1    # fix-and-hold: variance of the held DD ambiguities (demo5's default)
+    ar_filter: bool = True             # new signals that bring a fix down to a marginal ratio wait (demo5's arfilter)
     partial_ar: bool = True
     partial_ar_max_drop: int = 4
     partial_ar_max_float_sigma_m: float = 0.3   # subsets are searched only once the float position is this good
@@ -92,6 +94,8 @@ class RtkOptions:
             raise ValueError("mode known-start needs the take-off position (--known-start LAT,LON,H or X,Y,Z)")
         if not 0 <= self.elevation_mask_deg < 90:
             raise ValueError("elevation mask must be within [0, 90) degrees")
+        if not 1e-6 <= self.hold_variance_cyc2 <= 100:
+            raise ValueError(f"hold variance {self.hold_variance_cyc2} cycles^2: expected 1e-6 to 100")
         if not 0 <= self.slip_tdcp_threshold_m <= 1:
             raise ValueError(f"time-differenced slip threshold {self.slip_tdcp_threshold_m} m: expected 0 (off) to 1 m")
 
@@ -239,6 +243,13 @@ def read_rtklib_conf(path, base: RtkOptions | None = None) -> RtklibConfResult:
             setopt("ar_min_fix_to_hold", int(num()))
         elif key_l == "pos2-elmaskhold":
             setopt("hold_elevation_mask_deg", num())
+        elif key_l == "pos2-varholdamb":
+            setopt("hold_variance_cyc2", num())
+        elif key_l == "pos2-arfilter":
+            if val_l in ("on", "off", "1", "0"):
+                setopt("ar_filter", val_l in ("on", "1"))
+            else:
+                bad("expected on or off")
         elif key_l == "pos2-aroutcnt":
             setopt("outage_reset_epochs", int(num()))
         elif key_l == "pos2-maxage":

@@ -154,7 +154,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
         mode = "known-start" if (n_bands == 1 and known is not None) else "kinematic"
     kw = dict(mode=mode, n_bands=n_bands, filter_direction=opt.get("direction", opt.get("filter", "combined")))
     for key, field, cast in (("elmask", "elevation_mask_deg", float), ("ar", "ar_mode", str),
-                             ("ratio", "ratio_threshold", float), ("tdcp_slips", "slip_tdcp_threshold_m", float)):
+                             ("ratio", "ratio_threshold", float), ("tdcp_slips", "slip_tdcp_threshold_m", float),
+                             ("hold_variance", "hold_variance_cyc2", float)):
         if opt.get(key) is not None:
             kw[field] = cast(opt[key])
     if opt.get("navsys"):

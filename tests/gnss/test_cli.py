@@ -139,6 +139,29 @@ def test_tdcp_slip_threshold_option(tmp_path, capsys, monkeypatch):
     assert rc == 2 and "slip threshold" in err
 
 
+def test_hold_variance_option(tmp_path, capsys, monkeypatch):
+    """--hold-variance reaches the engine's options; a variance of 0 (a hold that cannot be met) is refused."""
+    from georef_core.cli import gnss_commands
+
+    seen = []
+    real = gnss_commands.options_from_args
+
+    def spy(args):
+        opts, notes = real(args)
+        seen.append(opts.hold_variance_cyc2)
+        return opts, notes
+
+    monkeypatch.setattr(gnss_commands, "options_from_args", spy)
+    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "h.pos"),
+                      "--freq", "l1", "--filter", "forward", f"--base-pos={BASE_XYZ}", "--hold-variance", "0.001"],
+                     capsys)
+    assert rc == 0, err
+    assert seen == [0.001]
+    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "bad.pos"),
+                      "--hold-variance", "0"], capsys)
+    assert rc == 2 and "hold variance" in err
+
+
 def test_navigation_far_from_the_observations_names_both_spans(tmp_path, capsys):
     """Every record months away from the observations: none is read, and the error names the rover,
     the observation span and the records' span."""

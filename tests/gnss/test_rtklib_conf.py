@@ -44,6 +44,8 @@ ant2-pos2          =-9.057836328
 ant2-pos3          =66.8
 ant2-antdelu       =0.1
 pos1-ionoopt       =est-stec
+pos2-varholdamb    =0.001
+pos2-arfilter      =off
 """)
     res = read_rtklib_conf(conf)
     o = res.options
@@ -53,6 +55,9 @@ pos1-ionoopt       =est-stec
     assert np.allclose(o.base_position_ecef_m, expect, atol=1e-4)
     assert o.base_antenna_delta_enu_m == (0.0, 0.0, 0.1)
     assert "pos1-ionoopt" in res.unsupported  # reported, not silently ignored
+    assert o.hold_variance_cyc2 == 0.001 and o.ar_filter is False
+    defaults = read_rtklib_conf(tmp_path / "a.conf").options.__class__()
+    assert defaults.hold_variance_cyc2 == 0.1 and defaults.ar_filter is True   # demo5's defaults
 
 
 def test_malformed_conf_names_file_and_line(tmp_path):
