@@ -105,8 +105,8 @@ def read_survey_json(survey_dir) -> dict:
         raise InputFileError(p, f"not valid JSON ({exc})") from None
 
 
-_SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "ratio", "navsys", "base_position_ecef_m",
-                        "known_start_ecef_m", "epsg", "events_csv"}
+_SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "ratio", "navsys", "tdcp_slips",
+                        "hold_variance", "base_position_ecef_m", "known_start_ecef_m", "epsg", "events_csv"}
 
 
 def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None) -> dict:
@@ -114,7 +114,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
     'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
     ``known_start_ecef_m``, ``epsg``, ``events_csv`` (trigger times that override the survey's), and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
-    (ratio-test threshold), ``navsys`` ('G,E,...'). 'auto' picks dual frequency when the rover records a second band,
+    (ratio-test threshold), ``navsys`` ('G,E,...'), ``tdcp_slips`` (m), ``hold_variance`` (cycles²); the summary
+    records the engine options used. 'auto' picks dual frequency when the rover records a second band,
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
     from ..errors import InputFileError
 
@@ -191,7 +192,10 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
             summary["events"]["source"] = _relative_to(summary["events"]["source"], survey_dir)
     summary["inputs"] = {"rover": _relative_to(rovers[0], survey_dir), "base": _relative_to(bases[0], survey_dir),
                          "nav": [_relative_to(p, survey_dir) for p in navs]}
-    summary["options"] = {"mode": mode, "n_bands": n_bands, "direction": kw["filter_direction"]}
+    summary["options"] = {"mode": mode, "n_bands": n_bands, "direction": kw["filter_direction"], "ar": rtk.ar_mode,
+                          "ratio": rtk.ratio_threshold, "elmask_deg": rtk.elevation_mask_deg,
+                          "systems": list(rtk.systems), "tdcp_slips_m": rtk.slip_tdcp_threshold_m,
+                          "hold_variance_cyc2": rtk.hold_variance_cyc2}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if progress:
         progress("gnss", 1, 1)

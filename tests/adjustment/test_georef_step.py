@@ -268,3 +268,20 @@ def test_unknown_gnss_settings_are_refused(survey, tmp_path):
         run_survey_gnss(survey, tmp_path, {"elmsk": 10})
     with pytest.raises(ProcessingError, match="freq 'l2'"):
         run_survey_gnss(survey, tmp_path, {"freq": "l2"})
+
+
+def test_gnss_settings_reach_the_engine(survey, tmp_path):
+    """The platform's GNSS settings (tdcp_slips, hold_variance, ...) are applied and recorded in the summary;
+    a value the engine cannot take is refused with the setting named."""
+    from georef_core.errors import ProcessingError
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    summary = run_survey_gnss(survey, tmp_path / "a", {"tdcp_slips": 0.08, "hold_variance": 0.01, "ratio": 2.5,
+                                                       "ar": "fix-and-hold"})
+    o = summary["options"]
+    assert o["tdcp_slips_m"] == 0.08 and o["hold_variance_cyc2"] == 0.01 and o["ratio"] == 2.5
+    assert o["ar"] == "fix-and-hold"
+    with pytest.raises(ProcessingError, match="hold variance"):
+        run_survey_gnss(survey, tmp_path / "b", {"hold_variance": 0})
+    with pytest.raises(ProcessingError, match="slip threshold"):
+        run_survey_gnss(survey, tmp_path / "c", {"tdcp_slips": 2})
