@@ -158,7 +158,12 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
                              ("ratio", "ratio_threshold", float), ("tdcp_slips", "slip_tdcp_threshold_m", float),
                              ("hold_variance", "hold_variance_cyc2", float)):
         if opt.get(key) is not None:
-            kw[field] = cast(opt[key])
+            try:
+                kw[field] = cast(opt[key])
+            except (TypeError, ValueError):
+                from ..errors import ProcessingError
+
+                raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
     if opt.get("navsys"):
         kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())
     if mode == "known-start":

@@ -285,3 +285,5 @@ def test_gnss_settings_reach_the_engine(survey, tmp_path):
         run_survey_gnss(survey, tmp_path / "b", {"hold_variance": 0})
     with pytest.raises(ProcessingError, match="slip threshold"):
         run_survey_gnss(survey, tmp_path / "c", {"tdcp_slips": 2})
+    with pytest.raises(ProcessingError, match="ratio 'three' is not a number"):
+        run_survey_gnss(survey, tmp_path / "d", {"ratio": "three"})
