@@ -119,7 +119,9 @@ def test_ublox_walk_fixes_as_often_as_demo5_and_the_carrier_phase_sides_with_our
     _, ours, ref = _run(case, tmp_path)
     c = compare_pos(ours, ref)
     assert c.fix_rate >= c.fix_rate_ref, c.as_dict()
-    assert c.median_horizontal_m <= 0.02, c.as_dict()
+    # 0.2-3.9 mm H / 0.7-2.3 mm V with demo5's hold variance (16.5 / 14 mm with RTKLIB 2.4.3's 0.001 cycle^2);
+    # what is left: demo5's wrong stretches and one satellite demo5 cannot fix (docs/gnss.md)
+    assert c.median_horizontal_m <= 0.005 and c.median_vertical_m <= 0.005, c.as_dict()
     opts = read_rtklib_conf(conf).options
     data = prepare(load_observations(rover).observations, load_observations(base).observations,
                    load_navigation(navs), opts)[0]
