@@ -116,8 +116,13 @@ def test_known_start_requires_position(tmp_path, capsys):
     assert rc == 2 and "known-start" in err
 
 
-def test_tdcp_slip_threshold_option(tmp_path, capsys, monkeypatch):
-    """--tdcp-slips reaches the engine's options (0 turns the check off); a negative value is refused."""
+@pytest.mark.parametrize("flag,field,values,bad,message", [
+    ("--tdcp-slips", "slip_tdcp_threshold_m", ("0", "0.08"), "-1", "slip threshold"),   # 0 turns the check off
+    ("--hold-variance", "hold_variance_cyc2", ("0.001",), "0", "hold variance"),        # 0: a hold never met
+])
+def test_engine_option_flags(tmp_path, capsys, monkeypatch, flag, field, values, bad, message):
+    """The flag reaches the engine's options (seen by a spy on the CLI's option builder, the solve then
+    running with them); an out-of-range value is refused with a message that names it."""
     from georef_core.cli import gnss_commands
 
     seen = []
@@ -125,41 +130,18 @@ def test_tdcp_slip_threshold_option(tmp_path, capsys, monkeypatch):
 
     def spy(args):
         opts, notes = real(args)
-        seen.append(opts.slip_tdcp_threshold_m)
+        seen.append(getattr(opts, field))
         return opts, notes
 
     monkeypatch.setattr(gnss_commands, "options_from_args", spy)
-    for value in ("0", "0.08"):
+    for value in values:
         rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / f"t{value}.pos"),
-                          "--freq", "l1", "--filter", "forward", f"--base-pos={BASE_XYZ}", "--tdcp-slips", value], capsys)
+                          "--freq", "l1", "--filter", "forward", f"--base-pos={BASE_XYZ}", flag, value], capsys)
         assert rc == 0, err
-    assert seen == [0.0, 0.08]
+    assert seen == [float(v) for v in values]
     rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "bad.pos"),
-                      "--tdcp-slips", "-1"], capsys)
-    assert rc == 2 and "slip threshold" in err
-
-
-def test_hold_variance_option(tmp_path, capsys, monkeypatch):
-    """--hold-variance reaches the engine's options; a variance of 0 (a hold that cannot be met) is refused."""
-    from georef_core.cli import gnss_commands
-
-    seen = []
-    real = gnss_commands.options_from_args
-
-    def spy(args):
-        opts, notes = real(args)
-        seen.append(opts.hold_variance_cyc2)
-        return opts, notes
-
-    monkeypatch.setattr(gnss_commands, "options_from_args", spy)
-    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "h.pos"),
-                      "--freq", "l1", "--filter", "forward", f"--base-pos={BASE_XYZ}", "--hold-variance", "0.001"],
-                     capsys)
-    assert rc == 0, err
-    assert seen == [0.001]
-    rc, _, err = run(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "bad.pos"),
-                      "--hold-variance", "0"], capsys)
-    assert rc == 2 and "hold variance" in err
+                      flag, bad], capsys)
+    assert rc == 2 and message in err
 
 
 def test_navigation_far_from_the_observations_names_both_spans(tmp_path, capsys):
