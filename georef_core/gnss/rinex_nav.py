@@ -47,7 +47,7 @@ from .gnss_time import (
     resolve_tow_near,
 )
 from .navigation import GlonassEphemeris, KeplerEphemeris, NavigationData
-from .rinex_nav_kernels import fill_hard_fields, record_fields
+from .rinex_nav_kernels import fill_hard_fields, record_epoch_fields, record_fields
 
 PathLike = str | Path
 
@@ -330,29 +330,18 @@ def _iter_records(lines: list[str], header: _Header, path: Path,
         yield _parse_record(lines[start], lines[start + 1:start + nlines], start + 1, system, v3, path, data)
 
 
+_EPOCH_COLS_V3 = np.array(((4, 4), (9, 2), (12, 2), (15, 2), (18, 2), (21, 2)), dtype=np.int64)
+_EPOCH_COLS_V2 = np.array(((3, 2), (6, 2), (9, 2), (12, 2), (15, 2), (17, 3)), dtype=np.int64)
+
+
 def _record_epochs_s(buf: np.ndarray, starts: np.ndarray, lens: np.ndarray, rec_line: np.ndarray,
                      v3: bool) -> tuple[np.ndarray, np.ndarray]:
     """Epoch of each record's first line (seconds since 1980-01-06 in its own time scale, whole seconds),
-    read from the fixed columns of the byte buffer for all records at once; and whether it was readable."""
-    # (first column, width) of year, month, day, hour, minute, second
-    cols = ((4, 4), (9, 2), (12, 2), (15, 2), (18, 2), (21, 2)) if v3 else \
-        ((3, 2), (6, 2), (9, 2), (12, 2), (15, 2), (17, 3))
-    line_start, line_len = starts[rec_line], lens[rec_line]
-    readable = line_len >= cols[-1][0] + cols[-1][1]
-    fields = []
-    for col, width in cols:
-        value = np.zeros(len(rec_line), dtype=np.int64)
-        seen_digit = np.zeros(len(rec_line), dtype=bool)
-        for k in range(width):
-            pos = np.minimum(line_start + col + k, len(buf) - 1)
-            ch = buf[pos].astype(np.int64)
-            digit = (ch >= 48) & (ch <= 57)
-            readable &= digit | ((ch == 32) & ~seen_digit)      # leading blanks only
-            value = value * 10 + np.where(digit, ch - 48, 0)
-            seen_digit |= digit
-        readable &= seen_digit
-        fields.append(value)
-    year, month, day, hour, minute, second = fields
+    read from the fixed columns of the byte buffer for all records at once (compiled:
+    rinex_nav_kernels.record_epoch_fields); and whether it was readable."""
+    fields, readable = record_epoch_fields(buf, starts, lens, np.ascontiguousarray(rec_line, dtype=np.int64),
+                                           _EPOCH_COLS_V3 if v3 else _EPOCH_COLS_V2)
+    year, month, day, hour, minute, second = fields.T
     if not v3:
         year = np.where(year < 80, year + 2000, year + 1900)
     readable &= (month >= 1) & (month <= 12) & (day >= 1) & (day <= 31)

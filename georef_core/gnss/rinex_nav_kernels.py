@@ -149,6 +149,37 @@ def record_fields(buf, line_start, line_len, rec_line, rec_n_lines, data_col, co
     return values, ok, hard[:n_hard]
 
 
+@njit(cache=True)
+def record_epoch_fields(buf, line_start, line_len, rec_line, cols):
+    """Integer calendar fields (n_records, 6) of each record's first line, read at the (first column,
+    width) pairs `cols` (year, month, day, hour, minute, second), and whether each record's were readable:
+    every field digits after leading blanks only, at least one digit, the line long enough."""
+    n_rec = rec_line.shape[0]
+    n_f = cols.shape[0]
+    fields = np.zeros((n_rec, n_f), np.int64)
+    readable = np.ones(n_rec, np.bool_)
+    last = cols[n_f - 1, 0] + cols[n_f - 1, 1]
+    for r in range(n_rec):
+        s0 = line_start[rec_line[r]]
+        if line_len[rec_line[r]] < last:
+            readable[r] = False
+            continue
+        for f in range(n_f):
+            value = 0
+            seen_digit = False
+            for k in range(cols[f, 1]):
+                ch = buf[s0 + cols[f, 0] + k]
+                if _ZERO <= ch <= _NINE:
+                    value = value * 10 + (ch - _ZERO)
+                    seen_digit = True
+                elif ch != _SPACE or seen_digit:
+                    readable[r] = False
+            if not seen_digit:
+                readable[r] = False
+            fields[r, f] = value
+    return fields, readable
+
+
 def fill_hard_fields(values: np.ndarray, buf: np.ndarray, hard: np.ndarray) -> None:
     """Python's float() (correctly rounded, as strtod) for the fields record_fields left to it."""
     if len(hard) == 0:
