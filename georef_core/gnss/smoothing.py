@@ -33,6 +33,28 @@ def _lone_fix(status: np.ndarray) -> np.ndarray:
     return fixed & ~before & ~after
 
 
+def _weighted_mean(xf: np.ndarray, qf: np.ndarray, xb: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance-weighted mean of two independent estimates, row by row: (x (N, 3), q (N, 3, 3)); NaN in
+    the rows whose covariances do not invert."""
+    try:
+        return _weighted_mean_rows(xf, qf, xb, qb)
+    except np.linalg.LinAlgError:      # a singular row: the others one by one
+        x, q = np.full(xf.shape, np.nan), np.full(qf.shape, np.nan)
+        for k in range(len(xf)):
+            try:
+                xk, qk = _weighted_mean_rows(xf[k:k + 1], qf[k:k + 1], xb[k:k + 1], qb[k:k + 1])
+            except np.linalg.LinAlgError:
+                continue
+            x[k], q[k] = xk[0], qk[0]
+        return x, q
+
+
+def _weighted_mean_rows(xf, qf, xb, qb):
+    wf, wb = np.linalg.inv(qf), np.linalg.inv(qb)
+    q = np.linalg.inv(wf + wb)
+    return (q @ (wf @ xf[..., None] + wb @ xb[..., None]))[..., 0], q
+
+
 def _combined_float(fwd: FilterOutput, bwd: FilterOutput) -> tuple[np.ndarray, np.ndarray]:
     """The two passes' float solutions combined per epoch (covariance-weighted mean where both exist, else
     the one that does): what an epoch falls back to when its combined fix is refused (fix_continuity)."""
@@ -44,14 +66,9 @@ def _combined_float(fwd: FilterOutput, bwd: FilterOutput) -> tuple[np.ndarray, n
     q = np.where(has_f[:, None, None], qf, qb).copy()
     both = np.nonzero(has_f & has_b)[0]
     if len(both):
-        try:
-            wf, wb = np.linalg.inv(qf[both]), np.linalg.inv(qb[both])
-            q_both = np.linalg.inv(wf + wb)
-        except np.linalg.LinAlgError:
-            return x, q
-        rhs = (wf @ xf[both][..., None] + wb @ xb[both][..., None])
-        x[both] = (q_both @ rhs)[..., 0]
-        q[both] = q_both
+        xm, qm = _weighted_mean(xf[both], qf[both], xb[both], qb[both])
+        ok = np.isfinite(xm).all(axis=1)
+        x[both[ok]], q[both[ok]] = xm[ok], qm[ok]
     return x, q
 
 
@@ -82,27 +99,26 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
         getattr(out, name)[take_b] = getattr(bwd, name)[take_b]
     if fwd.float_position_ecef_m is not None and bwd.float_position_ecef_m is not None:
         out.float_position_ecef_m, out.float_covariance_ecef_m2 = _combined_float(fwd, bwd)
-    both = (rf == rb) & (fwd.status != STATUS_NONE)
+    both = np.nonzero((rf == rb) & (fwd.status != STATUS_NONE))[0]
     run_f, run_b = _fixed_run_lengths(fwd.status, False), _fixed_run_lengths(bwd.status, True)
-    for e in np.nonzero(both)[0]:
-        qf, qb = fwd.covariance_ecef_m2[e], bwd.covariance_ecef_m2[e]
-        xf, xb = fwd.position_ecef_m[e], bwd.position_ecef_m[e]
-        try:
-            wf, wb = np.linalg.inv(qf), np.linalg.inv(qb)
-            q = np.linalg.inv(wf + wb)
-        except np.linalg.LinAlgError:
-            continue
+    xf, xb = fwd.position_ecef_m[both], bwd.position_ecef_m[both]
+    qf, qb = fwd.covariance_ecef_m2[both], bwd.covariance_ecef_m2[both]
+    x_mean, q_mean = _weighted_mean(xf, qf, xb, qb)
+    for k, e in enumerate(both):
+        q = q_mean[k]
+        if not np.isfinite(q).all():
+            continue      # a covariance that does not invert: the epoch keeps the pass chosen above
         if fwd.status[e] == STATUS_FIX:
             # two fixed passes with the same integers are the same function of this epoch's data, not two
             # independent estimates: average them without shrinking the covariance
-            out.position_ecef_m[e] = 0.5 * (xf + xb)
-            out.covariance_ecef_m2[e] = 0.5 * (qf + qb)
+            out.position_ecef_m[e] = 0.5 * (xf[k] + xb[k])
+            out.covariance_ecef_m2[e] = 0.5 * (qf[k] + qb[k])
         else:
-            out.position_ecef_m[e] = q @ (wf @ xf + wb @ xb)
+            out.position_ecef_m[e] = x_mean[k]
             out.covariance_ecef_m2[e] = q
         out.ratio[e] = max(fwd.ratio[e], bwd.ratio[e])
         out.n_sats[e] = max(fwd.n_sats[e], bwd.n_sats[e])
-        if fwd.status[e] == STATUS_FIX and np.linalg.norm(xf - xb) > FIX_CONFLICT_M:
+        if fwd.status[e] == STATUS_FIX and np.linalg.norm(xf[k] - xb[k]) > FIX_CONFLICT_M:
             conflict[e] = True
             longer, shorter = max(run_f[e], run_b[e]), min(run_f[e], run_b[e])
             if longer >= TRUSTED_RUN_EPOCHS and longer >= TRUSTED_RUN_FACTOR * shorter:
@@ -113,5 +129,5 @@ def combine(fwd: FilterOutput, bwd: FilterOutput) -> tuple[FilterOutput, np.ndar
                 out.residuals_m[e], out.n_fixed_amb[e] = src.residuals_m[e], src.n_fixed_amb[e]
             else:
                 out.status[e] = STATUS_FLOAT
-                out.covariance_ecef_m2[e] = q + np.outer(xf - xb, xf - xb) / 4.0
+                out.covariance_ecef_m2[e] = q + np.outer(xf[k] - xb[k], xf[k] - xb[k]) / 4.0
     return out, conflict
