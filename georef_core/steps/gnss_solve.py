@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputFileError, ProcessingError
 from ..gnss.camera_events import interpolate_at_events, read_event_csv, write_event_csv
 from ..gnss.ppk import solve_files
 from ..gnss.rtk_options import RtkOptions
@@ -100,8 +101,6 @@ def read_survey_json(survey_dir) -> dict:
     try:
         return json.loads(p.read_text())
     except json.JSONDecodeError as exc:
-        from ..errors import InputFileError
-
         raise InputFileError(p, f"not valid JSON ({exc})") from None
 
 
@@ -117,15 +116,11 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     (ratio-test threshold), ``navsys`` ('G,E,...'), ``tdcp_slips`` (m), ``hold_variance`` (cycles²); the summary
     records the engine options used. 'auto' picks dual frequency when the rover records a second band,
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
-    from ..errors import InputFileError
-
     survey_dir = Path(survey_dir)
     out = Path(out_dir) / "ppk"
     opt = dict(options or {})
     unknown = sorted(set(opt) - _SURVEY_GNSS_OPTIONS)
     if unknown:
-        from ..errors import ProcessingError
-
         raise ProcessingError(f"unknown GNSS settings: {', '.join(unknown)} (known: {', '.join(sorted(_SURVEY_GNSS_OPTIONS))})")
     meta = read_survey_json(survey_dir)
     rovers = _files_of_kind(survey_dir / "rover", ("rinex-obs", "ubx"))
@@ -145,8 +140,6 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     freq = opt.get("freq", "auto")
     bands = {"l1": 1, "l1+l2": 2, "l1+l2+l5": 3}
     if freq != "auto" and freq not in bands:
-        from ..errors import ProcessingError
-
         raise ProcessingError(f"GNSS settings: freq {freq!r} is not one of auto, {', '.join(bands)}")
     n_bands = bands[freq] if freq != "auto" else (2 if _has_second_frequency(rovers[0]) else 1)
     mode = opt.get("mode", "auto")
@@ -161,8 +154,6 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
             try:
                 kw[field] = cast(opt[key])
             except (TypeError, ValueError):
-                from ..errors import ProcessingError
-
                 raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
     if opt.get("navsys"):
         kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())
@@ -177,8 +168,6 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     try:
         rtk.validate()
     except ValueError as exc:
-        from ..errors import ProcessingError
-
         raise ProcessingError(f"GNSS settings: {exc}") from None
     events_csv = survey_dir / "events.csv" if (survey_dir / "events.csv").is_file() else None
     rover_events_first = True
