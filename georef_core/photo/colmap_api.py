@@ -153,6 +153,68 @@ def database_image_ids(database_path) -> dict[str, int]:
         close_database(db)
 
 
+# Where the COLMAP database holds an image id (4.x and 3.x schemas): table, column, and the column telling
+# the sensor type where that column holds other sensors' ids too (images are sensor type 0).
+_IMAGE_ID_COLUMNS = (("images", "image_id", None), ("keypoints", "image_id", None),
+                     ("descriptors", "image_id", None), ("frame_data", "data_id", "sensor_type"),
+                     ("pose_priors", "corr_data_id", "corr_sensor_type"), ("pose_priors", "image_id", None))
+
+
+def _renumber(con, table: str, column: str, new_of: dict[int, int], type_column: str | None) -> None:
+    """Apply an id permutation to one column: shift everything out of the way first, then map (a
+    permutation applied in place would collide with unique keys)."""
+    only = f" AND {type_column} = 0" if type_column else ""
+    offset = int(con.execute(f"SELECT MAX({column}) FROM {table}").fetchone()[0] or 0) + 1
+    con.execute(f"UPDATE {table} SET {column} = {column} + ? WHERE {column} IN "
+                f"({','.join(str(int(k)) for k in new_of)}){only}", (offset,))
+    con.executemany(f"UPDATE {table} SET {column} = ? WHERE {column} = ?{only}",
+                    [(new, old + offset) for old, new in new_of.items()])
+
+
+def number_images_by_name(database_path) -> bool:
+    """Renumber the images of a freshly extracted database so that image ids follow the image names.
+
+    COLMAP's extractor numbers images in the order its threads finish them, which changes from run to run
+    with more than one thread; matching and mapping break ties by id, so the same photos gave slightly
+    different models each run. Called between extraction and matching (a database with matches is
+    refused: their pair ids would need recomputing). Frames of one image each (COLMAP 4) are renumbered in
+    the same name order (when they all share one rig). Returns whether anything changed."""
+    import sqlite3
+
+    con = sqlite3.connect(str(database_path))
+    try:
+        columns = {t: {r[1] for r in con.execute(f"PRAGMA table_info({t})")}
+                   for (t,) in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall()}
+        for t in ("matches", "two_view_geometries"):
+            if t in columns and con.execute(f"SELECT COUNT(*) FROM {t}").fetchone()[0]:
+                raise ValueError(f"{database_path}: images can only be renumbered before matching")
+        rows = con.execute("SELECT image_id, name FROM images").fetchall()
+        ids = sorted(i for i, _ in rows)
+        new_of = {old: new for (old, _), new in zip(sorted(rows, key=lambda r: r[1]), ids) if old != new}
+        frame_new_of = {}
+        if {"frame_data", "frames"} <= columns.keys():
+            frames = con.execute("SELECT frame_id, MIN(data_id), COUNT(*), MAX(sensor_type) FROM frame_data "
+                                 "GROUP BY frame_id").fetchall()
+            one_rig = con.execute("SELECT COUNT(DISTINCT rig_id) FROM frames").fetchone()[0] <= 1
+            if frames and one_rig and all(n == 1 and kind == 0 for _, _, n, kind in frames):
+                name_of = dict(rows)
+                by_name = sorted(frames, key=lambda f: name_of.get(f[1], ""))
+                frame_ids = sorted(f[0] for f in frames)
+                frame_new_of = {f[0]: new for f, new in zip(by_name, frame_ids) if f[0] != new}
+        if not new_of and not frame_new_of:
+            return False
+        with con:
+            if new_of:
+                for table, column, type_column in _IMAGE_ID_COLUMNS:
+                    if column in columns.get(table, ()) and (type_column is None or type_column in columns[table]):
+                        _renumber(con, table, column, new_of, type_column)
+            if frame_new_of:
+                _renumber(con, "frame_data", "frame_id", frame_new_of, None)
+        return True
+    finally:
+        con.close()
+
+
 def write_position_priors(database_path, positions: dict[str, Sequence[float]]) -> int:
     """Replace the database's pose priors by Cartesian (metric, local frame) image positions, used by the
     spatial matcher. `positions`: image name -> (x, y, z). Returns the number written."""
@@ -217,13 +279,22 @@ def extract_sift(database_path, image_dir, image_names: Sequence[str] | None = N
 
 # ----------------------------------------------------------------------------- matching
 
-def _matching_options(num_threads: int, max_num_matches: int, guided: bool):
+def _matching_options(num_threads: int, max_num_matches: int, guided: bool, random_seed: int | None = 0):
+    """Matching options; `random_seed` seeds the RANSAC of the geometric verification (COLMAP's default,
+    -1, draws a new seed per pair and run: the verified matches, and so the model, changed run to run)."""
     if hasattr(pycolmap, "FeatureMatchingOptions"):
         m = pycolmap.FeatureMatchingOptions()
         m.num_threads = int(num_threads)
         m.max_num_matches = int(max_num_matches)
         m.guided_matching = bool(guided)
-        return {"matching_options": m}
+        kw = {"matching_options": m}
+        if random_seed is not None and hasattr(pycolmap, "TwoViewGeometryOptions"):
+            v = pycolmap.TwoViewGeometryOptions()
+            ransac = getattr(v, "ransac", None)
+            if ransac is not None and _set_first(ransac, ["random_seed"], int(random_seed)):
+                v.ransac = ransac
+                kw["verification_options"] = v
+        return kw
     m = pycolmap.SiftMatchingOptions()
     m.num_threads = int(num_threads)
     m.max_num_matches = int(max_num_matches)
@@ -244,16 +315,17 @@ def _pairing(cls_names: Sequence[str], legacy_kw: str, **values):
 
 
 def match_exhaustive(database_path, num_threads: int = 2, max_num_matches: int = 32768, guided: bool = False,
-                     use_gpu: bool = False) -> None:
-    kw = _matching_options(num_threads, max_num_matches, guided)
+                     use_gpu: bool = False, random_seed: int | None = 0) -> None:
+    kw = _matching_options(num_threads, max_num_matches, guided, random_seed)
     kw.update(_pairing(["ExhaustivePairingOptions", "ExhaustiveMatchingOptions"], "matching_options"))
     _call(pycolmap.match_exhaustive, str(database_path), device=_device(use_gpu), **kw)
 
 
 def match_sequential(database_path, overlap: int = 10, quadratic_overlap: bool = True, num_threads: int = 2,
-                     max_num_matches: int = 32768, guided: bool = False, use_gpu: bool = False) -> None:
+                     max_num_matches: int = 32768, guided: bool = False, use_gpu: bool = False,
+                     random_seed: int | None = 0) -> None:
     """Match each image with the next `overlap` ones in name order (and 2^k-th ones if quadratic)."""
-    kw = _matching_options(num_threads, max_num_matches, guided)
+    kw = _matching_options(num_threads, max_num_matches, guided, random_seed)
     kw.update(_pairing(["SequentialPairingOptions", "SequentialMatchingOptions"], "matching_options",
                        overlap=int(overlap), quadratic_overlap=bool(quadratic_overlap), loop_detection=False))
     _call(pycolmap.match_sequential, str(database_path), device=_device(use_gpu), **kw)
@@ -261,11 +333,12 @@ def match_sequential(database_path, overlap: int = 10, quadratic_overlap: bool =
 
 def match_spatial(database_path, positions: dict[str, Sequence[float]], max_num_neighbors: int = 20,
                   max_distance_m: float = 100.0, ignore_z: bool = True, num_threads: int = 2,
-                  max_num_matches: int = 32768, guided: bool = False, use_gpu: bool = False) -> None:
+                  max_num_matches: int = 32768, guided: bool = False, use_gpu: bool = False,
+                  random_seed: int | None = 0) -> None:
     """Match each image with its `max_num_neighbors` nearest ones (within `max_distance_m`) by the given
     metric positions (image name -> x, y, z in a local frame), written as Cartesian pose priors."""
     write_position_priors(database_path, positions)
-    kw = _matching_options(num_threads, max_num_matches, guided)
+    kw = _matching_options(num_threads, max_num_matches, guided, random_seed)
     kw.update(_pairing(["SpatialPairingOptions", "SpatialMatchingOptions"], "matching_options",
                        max_num_neighbors=int(max_num_neighbors), max_distance=float(max_distance_m),
                        ignore_z=bool(ignore_z), is_gps=False))
@@ -294,6 +367,11 @@ def incremental_mapping(database_path, image_dir, output_dir, num_threads: int =
     _set_first(opts, ["min_model_size"], int(min_model_size))
     if random_seed is not None:
         _set_first(opts, ["random_seed"], int(random_seed))
+        mapper = getattr(opts, "mapper", None)
+        if mapper is not None and _set_first(mapper, ["random_seed"], int(random_seed)):
+            opts.mapper = mapper
+        if hasattr(pycolmap, "set_random_seed"):
+            pycolmap.set_random_seed(int(random_seed))
     if global_ba_growth is not None:
         _set_first(opts, ["ba_global_frames_ratio", "ba_global_images_ratio"], float(global_ba_growth))
         _set_first(opts, ["ba_global_points_ratio"], float(global_ba_growth))

@@ -47,7 +47,7 @@ class SfmOptions:
     num_threads: int = 2  # 1: single-threaded (reproducible timings); -1: all cores
     use_gpu: bool = False
     refine_principal_point: bool = False
-    random_seed: int = 0
+    random_seed: int = 0  # RANSAC of matching and mapping: same photos and options, same model
     verbose: bool = False  # COLMAP's own log (glog) on stderr
     positions: dict[str, tuple[float, float, float]] | None = None  # name -> local metric xyz (else EXIF GPS)
 
@@ -132,12 +132,13 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
                             single_camera=opts.single_camera, max_image_size=opts.max_image_size,
                             max_num_features=opts.max_num_features, num_threads=opts.num_threads,
                             use_gpu=opts.use_gpu, first_octave=_first_octave(opts, infos))
+    colmap_api.number_images_by_name(db_path)   # ids in name order, not in the threads' finishing order
     timings["extraction"] = time.perf_counter() - t0
     report("extraction", len(infos), len(infos))
 
     report("matching", 0, 1)
     t0 = time.perf_counter()
-    common = {"num_threads": opts.num_threads, "use_gpu": opts.use_gpu}
+    common = {"num_threads": opts.num_threads, "use_gpu": opts.use_gpu, "random_seed": opts.random_seed}
     if matcher == "exhaustive":
         colmap_api.match_exhaustive(db_path, **common)
     elif matcher == "spatial":
