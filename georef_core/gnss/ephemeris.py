@@ -46,7 +46,7 @@ from .constants import (
     OMEGA_EARTH_BDS_RAD_S,
     OMEGA_EARTH_RAD_S,
 )
-from .ephemeris_kernels import glonass_states, select_records
+from .ephemeris_kernels import K_IODE, K_VAR, glonass_states, kepler_states, select_records
 from .gnss_time import gps_time_s_to_datetime, leap_seconds_at
 from .navigation import GlonassEphemeris, KeplerEphemeris, NavigationData
 
@@ -268,12 +268,8 @@ def select_ephemeris(nav: NavigationData, sat_id: str, t_gps_s: float, *,
 # evaluation
 
 
-_K_TOE, _K_TOC, _K_AF0, _K_AF1, _K_AF2, _K_A, _K_E, _K_I0, _K_OM0, _K_OMG, _K_M0, _K_DN, _K_IDOT, \
-    _K_OMDOT, _K_CUC, _K_CUS, _K_CRC, _K_CRS, _K_CIC, _K_CIS, _K_TOES, _K_MU, _K_WE, _K_GEO, \
-    _K_VAR, _K_IODE = range(26)
-
-
 def _kepler_row(eph: KeplerEphemeris) -> tuple:
+    """The record's parameters in the column order of ephemeris_kernels (K_TOE ... K_IODE)."""
     sys = eph.sat_id[0]
     prn = int(eph.sat_id[1:])
     if sys == "E":
@@ -318,67 +314,10 @@ def _glonass_tb_index(eph: GlonassEphemeris, leap_s: int | None) -> int:
 
 
 def _kepler_states(rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Vectorised Kepler evaluation. rows: (N, 26) parameter rows, t: (N,) gps_time_s."""
-    p = rows.T
-    A, e, mu = p[_K_A], p[_K_E], p[_K_MU]
-    tk = t - p[_K_TOE]
-    n = np.sqrt(mu / (A * A * A)) + p[_K_DN]
-    M = p[_K_M0] + n * tk
-    E = M.copy()
-    for _ in range(KEPLER_MAX_ITERATIONS):
-        dE = (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
-        E -= dE
-        if not np.any(np.abs(dE) > KEPLER_TOLERANCE_RAD):
-            break
-    sinE, cosE = np.sin(E), np.cos(E)
-    one_m_ecos = 1.0 - e * cosE
-    sq = np.sqrt(1.0 - e * e)
-    phi = np.arctan2(sq * sinE, cosE - e) + p[_K_OMG]
-    s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
-    cus, cuc, crs, crc, cis, cic = p[_K_CUS], p[_K_CUC], p[_K_CRS], p[_K_CRC], p[_K_CIS], p[_K_CIC]
-    u = phi + cus * s2 + cuc * c2
-    r = A * one_m_ecos + crs * s2 + crc * c2
-    inc = p[_K_I0] + p[_K_IDOT] * tk + cis * s2 + cic * c2
-    E_dot = n / one_m_ecos
-    phi_dot = sq * E_dot / one_m_ecos
-    u_dot = phi_dot * (1.0 + 2.0 * (cus * c2 - cuc * s2))
-    r_dot = A * e * sinE * E_dot + 2.0 * phi_dot * (crs * c2 - crc * s2)
-    i_dot = p[_K_IDOT] + 2.0 * phi_dot * (cis * c2 - cic * s2)
-    cu, su = np.cos(u), np.sin(u)
-    xp, yp = r * cu, r * su
-    xp_dot = r_dot * cu - yp * u_dot
-    yp_dot = r_dot * su + xp * u_dot
-
-    we, geo = p[_K_WE], p[_K_GEO] > 0.5
-    node_rate = p[_K_OMDOT] - np.where(geo, 0.0, we)
-    node = p[_K_OM0] + node_rate * tk - we * p[_K_TOES]
-    cO, sO, ci, si = np.cos(node), np.sin(node), np.cos(inc), np.sin(inc)
-    X = xp * cO - yp * ci * sO
-    Y = xp * sO + yp * ci * cO
-    Z = yp * si
-    Xd = xp_dot * cO - yp_dot * ci * sO + yp * si * sO * i_dot - node_rate * Y
-    Yd = xp_dot * sO + yp_dot * ci * cO - yp * si * cO * i_dot + node_rate * X
-    Zd = yp_dot * si + yp * ci * i_dot
-    if np.any(geo):
-        # BeiDou GEO: rotate by -5 deg about X, then by the Earth rotation since toe about Z
-        g = np.nonzero(geo)[0]
-        ang = we[g] * tk[g]
-        ca, sa = np.cos(ang), np.sin(ang)
-        w0, w1, w2 = X[g], Y[g] * _COS_M5 + Z[g] * _SIN_M5, -Y[g] * _SIN_M5 + Z[g] * _COS_M5
-        w0d, w1d, w2d = Xd[g], Yd[g] * _COS_M5 + Zd[g] * _SIN_M5, -Yd[g] * _SIN_M5 + Zd[g] * _COS_M5
-        gx, gy = w0 * ca + w1 * sa, -w0 * sa + w1 * ca
-        X[g], Y[g], Z[g] = gx, gy, w2
-        Xd[g] = w0d * ca + w1d * sa + we[g] * gy
-        Yd[g] = -w0d * sa + w1d * ca - we[g] * gx
-        Zd[g] = w2d
-
-    dtc = t - p[_K_TOC]
-    rel = 2.0 * np.sqrt(mu * A) * e / (CLIGHT_M_S * CLIGHT_M_S)
-    clock = p[_K_AF0] + p[_K_AF1] * dtc + p[_K_AF2] * dtc * dtc - rel * sinE
-    drift = p[_K_AF1] + 2.0 * p[_K_AF2] * dtc - rel * cosE * E_dot
-    pos = np.stack((X, Y, Z), axis=1)
-    vel = np.stack((Xd, Yd, Zd), axis=1)
-    return pos, vel, clock, drift
+    """Kepler evaluation of many rows at once (ephemeris_kernels.kepler_states). rows: (N, 26) parameter
+    rows, t: (N,) gps_time_s."""
+    return kepler_states(np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(t, dtype=float),
+                         KEPLER_TOLERANCE_RAD, KEPLER_MAX_ITERATIONS, CLIGHT_M_S, _COS_M5, _SIN_M5)
 
 
 def _evaluate(records: list, rec_id: np.ndarray, t: np.ndarray, leap_seconds: int | None) -> SatelliteStates:
@@ -419,8 +358,8 @@ def _evaluate(records: list, rec_id: np.ndarray, t: np.ndarray, leap_seconds: in
         out.velocity_ecef_m_s[kep] = vel
         out.clock_bias_s[kep] = clk
         out.clock_drift_s_s[kep] = drift
-        out.variance_m2[kep] = rows[:, _K_VAR]
-        out.iode[kep] = rows[:, _K_IODE].astype(np.int64)
+        out.variance_m2[kep] = rows[:, K_VAR]
+        out.iode[kep] = rows[:, K_IODE].astype(np.int64)
         out.valid[kep] = np.isfinite(pos).all(axis=1) & np.isfinite(clk)
     bad = ~out.valid
     if bad.any():
@@ -464,18 +403,33 @@ def satellite_states(nav: NavigationData, sat_ids: Sequence[str], t_transmit_gps
     ephemeris changes). Rows without a usable (healthy, unless require_healthy=False) ephemeris have
     valid=False and zeros elsewhere. The selection runs once per satellite for all its rows.
     """
-    n = len(sat_ids)
+    if len(sat_ids) == 0:
+        return satellite_states_indexed(nav, [], np.zeros(0, np.int64), t_transmit_gps_s,
+                                        t_select_gps_s=t_select_gps_s, require_healthy=require_healthy)
+    names, inverse = np.unique(np.asarray(sat_ids, dtype=str), return_inverse=True)
+    return satellite_states_indexed(nav, [str(x) for x in names], inverse.reshape(-1), t_transmit_gps_s,
+                                    t_select_gps_s=t_select_gps_s, require_healthy=require_healthy)
+
+
+def satellite_states_indexed(nav: NavigationData, names: Sequence[str], sat_index: np.ndarray,
+                             t_transmit_gps_s: np.ndarray | float, *, t_select_gps_s: float | np.ndarray | None = None,
+                             require_healthy: bool = True) -> SatelliteStates:
+    """satellite_states with the satellites given as indices into `names` (row i is names[sat_index[i]]):
+    the form observation arrays already have, without building and sorting a string per row."""
+    sat_index = np.asarray(sat_index, dtype=np.int64)
+    n = len(sat_index)
     t = np.broadcast_to(np.asarray(t_transmit_gps_s, dtype=float), (n,))
     ts = t if t_select_gps_s is None else np.broadcast_to(np.asarray(t_select_gps_s, dtype=float), (n,))
     rec_id = np.full(n, -1, dtype=np.int64)
     records: list = []
     if n:
-        names, inverse = np.unique(np.asarray(sat_ids, dtype=str), return_inverse=True)
-        order = np.argsort(inverse, kind="stable")
-        bounds = np.searchsorted(inverse[order], np.arange(len(names) + 1))
+        order = np.argsort(sat_index, kind="stable")
+        bounds = np.searchsorted(sat_index[order], np.arange(len(names) + 1))
         for k, sat in enumerate(names):
             rows = order[bounds[k]:bounds[k + 1]]
-            recs, chosen = _select_many(nav, str(sat), ts[rows], require_healthy)
+            if len(rows) == 0:
+                continue
+            recs, chosen = _select_many(nav, sat, ts[rows], require_healthy)
             ok = chosen >= 0
             rec_id[rows[ok]] = chosen[ok] + len(records)
             records.extend(recs)
@@ -492,6 +446,7 @@ __all__ = [
     "is_galileo_fnav",
     "is_healthy",
     "satellite_states",
+    "satellite_states_indexed",
     "select_ephemeris",
 ]
 

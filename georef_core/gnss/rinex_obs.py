@@ -59,7 +59,7 @@ from ..errors import InputFileError
 from .compressed_files import read_text
 from .gnss_time import calendar_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .observations import RawObservations, ReceiverHeader
-from .rinex_obs_kernels import decode_fields
+from .rinex_obs_kernels import decode_fields, scan_rinex2_epochs
 
 __all__ = [
     "RINEX2_TO_RINEX3",
@@ -454,7 +454,28 @@ def _scan_rinex3(path: Path, lines: list[bytes], i: int, state: _Header) -> _Sca
     return scan
 
 
-def _scan_rinex2(path: Path, lines: list[bytes], i: int, state: _Header) -> _Scan:
+def _add_regular_epochs(scan: _Scan, block: _Block, lines: list[bytes], found: tuple) -> None:
+    """Append the regular epochs found by the compiled scan (rinex_obs_kernels.scan_rinex2_epochs)."""
+    _, at, flags, counts, first, fields, sats = found
+    e0 = len(scan.epoch_flags)
+    per = block.lines_per_record
+    block.epoch.extend(range(e0, e0 + len(at)))
+    block.start.extend(first.tolist())
+    block.count.extend(counts.tolist())
+    block.sat_text.append(sats.tobytes())
+    for a, n in zip(first.tolist(), counts.tolist()):
+        block.lines.extend(lines[a:a + n * per])
+    calendar = fields[:, :5].astype(np.int64).tolist()
+    scan.epoch_fields.extend((*c, sec) for c, sec in zip(calendar, fields[:, 5].tolist()))
+    scan.epoch_lines.extend((at + 1).tolist())
+    scan.epoch_flags.extend(flags.tolist())
+
+
+def _scan_rinex2(path: Path, lines: list[bytes], i: int, state: _Header,
+                 line_spans: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> _Scan:
+    """Split the data section into epochs. With `line_spans` (the file's bytes, each line's start and end),
+    runs of regular epochs are walked by a compiled kernel and only the other records (events, header
+    records, anything malformed, the last epoch) by the Python code below, which reports the errors."""
     scan = _Scan()
     n_lines = len(lines)
     while n_lines > i and not lines[n_lines - 1].strip():
@@ -467,6 +488,13 @@ def _scan_rinex2(path: Path, lines: list[bytes], i: int, state: _Header) -> _Sca
     block = new_block()
     scan.blocks.append(block)
     while i < n_lines:
+        if line_spans is not None:
+            found = scan_rinex2_epochs(*line_spans, i, n_lines, block.lines_per_record)
+            if len(found[1]):
+                _add_regular_epochs(scan, block, lines, found)
+            i = found[0]
+            if i >= n_lines:
+                break
         line = lines[i]
         if not line.strip():
             i += 1
@@ -646,10 +674,16 @@ def read_rinex_obs(path: str | Path) -> RawObservations:
     if b"\r" in data:
         data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     lines = data.split(b"\n")
-    del data
     state, first_data = _read_header(p, lines)
-    scanner = _scan_rinex3 if state.version >= 3 else _scan_rinex2
-    scan = scanner(p, lines, first_data, state)
+    if state.version >= 3:
+        del data
+        scan = _scan_rinex3(p, lines, first_data, state)
+    else:
+        buf = np.frombuffer(data, np.uint8)
+        newlines = np.flatnonzero(buf == 10)
+        spans = (buf, np.concatenate(([0], newlines + 1)), np.concatenate((newlines, [len(buf)])))
+        scan = _scan_rinex2(p, lines, first_data, state, spans)
+        del data, buf, spans
     if not scan.epoch_flags:
         raise InputFileError(p, "contains no (complete) observation epoch")
     records = [_records(p, b, state.version) for b in scan.blocks if b.count]

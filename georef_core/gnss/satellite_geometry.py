@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import CLIGHT_M_S, OMEGA_EARTH_RAD_S
-from .ephemeris import satellite_states
+from .ephemeris import satellite_states_indexed
 from .navigation import NavigationData
 from .observations import ObservationSet
 
@@ -47,8 +47,7 @@ def compute_observed_satellites(obs: ObservationSet, nav: NavigationData) -> Obs
     valid = np.zeros((n_e, n_s), dtype=bool)
     if len(e_idx):
         t_tx = obs.gps_time_s[e_idx] - code[e_idx, s_idx] / CLIGHT_M_S
-        sats = [obs.sat_ids[s] for s in s_idx]
-        st = satellite_states(nav, sats, t_tx)
+        st = satellite_states_indexed(nav, obs.sat_ids, s_idx, t_tx)
         ok = np.asarray(st.valid, dtype=bool)
         dts = np.asarray(st.clock_bias_s)
         p = np.asarray(st.position_ecef_m) - np.asarray(st.velocity_ecef_m_s) * dts[:, None]
