@@ -266,6 +266,9 @@ def _record_spans(lines: list[str], header: _Header, path: Path, buf: np.ndarray
     for i in range(b0, first_id):
         if lines[i].strip():
             raise InputFileError(path, "continuation line without a record (satellite/epoch) line", line=i + 1)
+    fast = _regular_record_spans(header, buf, starts, ids, n)
+    if fast is not None:
+        return fast
     bounds = ids.tolist() + [n]
     spans = []
     for k in range(len(bounds) - 1):
@@ -292,6 +295,36 @@ def _record_spans(lines: list[str], header: _Header, path: Path, buf: np.ndarray
     return spans
 
 
+def _regular_record_spans(header: _Header, buf: np.ndarray, starts: np.ndarray, ids: np.ndarray,
+                          n: int) -> list[tuple[str, int, int]] | None:
+    """_record_spans for the usual file, all at once: every record has a line count its system allows
+    (no trailing blank lines to trim, nothing to report). None when any record needs the line-by-line
+    checks."""
+    n_lines = np.diff(np.append(ids, n))
+    if header.version >= 3.0:
+        letters = buf[starts[ids]] if len(ids) else np.zeros(0, np.uint8)
+        letters = np.where((letters >= 97) & (letters <= 122), letters - 32, letters)
+        keep = np.zeros(len(ids), bool)
+        for code in np.unique(letters).tolist():
+            allowed = _RECORD_LINES_V3.get(chr(code))
+            if allowed is None:
+                continue  # unknown system letter: skipped, as the line-by-line path does
+            mine = letters == code
+            if not np.isin(n_lines[mine], allowed).all():
+                return None
+            if chr(code) in _KEPLER_SYSTEMS or chr(code) == "R":
+                keep |= mine
+        rows = np.flatnonzero(keep)
+        return [(chr(c), i, k) for c, i, k in zip(letters[rows].tolist(), ids[rows].tolist(), n_lines[rows].tolist())]
+    system = header.system
+    allowed = 8 if system == "G" else 4
+    if not (n_lines == allowed).all():
+        return None
+    if system not in _KEPLER_SYSTEMS and system != "R":
+        return []
+    return [(system, i, allowed) for i in ids.tolist()]
+
+
 def _iter_records(lines: list[str], header: _Header, path: Path,
                   time_window_gps_s: tuple[float, float] | None = None,
                   stats: dict | None = None) -> Iterator[_Record]:
@@ -309,7 +342,8 @@ def _iter_records(lines: list[str], header: _Header, path: Path,
     if time_window_gps_s is not None:
         epoch_s, readable = _record_epochs_s(buf, starts, lens, rec_line, v3)
         t0, t1 = time_window_gps_s
-        margin = np.array([MAX_EPHEMERIS_AGE_S.get(sp[0], max(MAX_EPHEMERIS_AGE_S.values())) for sp in spans])
+        longest = max(MAX_EPHEMERIS_AGE_S.values())
+        margin = np.array([MAX_EPHEMERIS_AGE_S.get(sp[0], longest) for sp in spans])
         margin += EPHEMERIS_WINDOW_SLACK_S
         # unreadable epochs are kept: their record is then parsed and the error reported with its line
         keep = ~readable | ((epoch_s >= t0 - margin) & (epoch_s <= t1 + margin))
