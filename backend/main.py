@@ -10,6 +10,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import FileResponse
 
 from .api.router import include_api
+from .core.heap_freeze import HeapFreeze
 from .core.limits import ConcurrencyLimit
 from .core.problems import NotFound, install_problem_handlers
 from .core.settings import Settings, get_settings
@@ -37,6 +38,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                            allow_methods=["*"], allow_headers=["*"], expose_headers=["ETag", "Link", "X-Total-Count"])
 
     app.add_middleware(SecurityHeaders)
+    if settings.freeze_heap:
+        app.add_middleware(HeapFreeze)
     app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests,
                        read_limit=settings.resolved_max_concurrent_reads())
     include_api(app)

@@ -43,6 +43,9 @@ class Settings(BaseSettings):
     # GET/HEAD requests inside the application at once per process (0 = two per CPU core, at least 4): reads
     # are CPU-bound, and more of them at once only share the cores and the GIL (docs/deploy.md)
     max_concurrent_reads: int = 0
+    # collect and freeze the long-lived heap after start-up and after requests that import modules, so that
+    # full garbage collections stay short (core/heap_freeze.py; docs/deploy.md)
+    freeze_heap: bool = True
 
     def resolved_max_concurrent_reads(self) -> int:
         if self.max_concurrent_reads > 0:
