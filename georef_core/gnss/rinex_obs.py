@@ -29,9 +29,11 @@ Reading
   file that ends inside an epoch (fewer lines than announced, or a last line cut inside a value) is *not* an
   error: the complete epochs are kept and a :class:`RinexTruncatedWarning` names the file and line.
 
-Speed (~0.005-0.02 s/MB on a 2-core machine): the only per-line Python work is splitting epochs. Observation
-lines are padded into one fixed-width byte matrix and its 16-character fields (F14.3 value, LLI, SSI) are decoded
-by a compiled kernel (rinex_obs_kernels.py) that reads the integer value in thousandths and checks the layout
+Speed (~0.005-0.02 s/MB on a 2-core machine): the only per-epoch Python work is splitting RINEX 3 epochs (RINEX
+2 epochs are split by a compiled kernel, which leaves events, header records and damaged lines to the Python
+scan). Observation lines are copied from the file's bytes into one fixed-width byte matrix and its 16-character
+fields (F14.3 value, LLI, SSI) are decoded by compiled kernels (rinex_obs_kernels.py) that read the integer
+value in thousandths and check the layout
 (blanks, optional minus, digits, the point in column 11, three decimals, flags blank or a digit). Anything else
 takes a slower per-field path: valid numbers in other layouts (other decimals, exponents) are read there, and
 letters or a shifted column are reported with their line.
@@ -59,7 +61,7 @@ from ..errors import InputFileError
 from .compressed_files import read_text
 from .gnss_time import calendar_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .observations import RawObservations, ReceiverHeader
-from .rinex_obs_kernels import decode_fields, scan_rinex2_epochs
+from .rinex_obs_kernels import decode_fields, pad_rows, scan_rinex2_epochs
 
 __all__ = [
     "RINEX2_TO_RINEX3",
@@ -164,22 +166,6 @@ def _decode_fields(path: Path, fields: np.ndarray, field_line: np.ndarray) -> tu
     lli[missing] = 0
     ssi[missing] = 0
     return values, lli, ssi
-
-
-def _pad_lines(lines: list[bytes], width: int) -> np.ndarray:
-    """Lines as an (n, width) uint8 matrix: blank-padded, cut at ``width`` (built in chunks to bound memory)."""
-    out = np.empty((len(lines), width), np.uint8)
-    if not lines:
-        return out
-    cut = max(map(len, lines)) > width
-    step = 1 << 14
-    for a in range(0, len(lines), step):
-        part = lines[a:a + step]
-        if cut:
-            part = [line[:width] for line in part]
-        out[a:a + len(part)] = np.frombuffer(b"".join([line.ljust(width) for line in part]), np.uint8) \
-            .reshape(len(part), width)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -344,10 +330,9 @@ class _Block:
     """Observation records that share one observation-type layout."""
 
     layout: dict[str, list[str | None]]
-    lines: list[bytes] = field(default_factory=list)      # RINEX 3: one line per record; RINEX 2: L per record
     epoch: list[int] = field(default_factory=list)        # per epoch in the block: epoch index
     start: list[int] = field(default_factory=list)        # index (in the file's line list) of the first record line
-    count: list[int] = field(default_factory=list)        # records in that epoch
+    count: list[int] = field(default_factory=list)        # records in that epoch (each lines_per_record lines)
     sat_text: list[bytes] = field(default_factory=list)   # RINEX 2: 3 characters per record
     lines_per_record: int = 1
 
@@ -434,7 +419,6 @@ def _scan_rinex3(path: Path, lines: list[bytes], i: int, state: _Header) -> _Sca
                 block.epoch.append(len(scan.epoch_flags))
                 block.start.append(i + 1)
                 block.count.append(n)
-                block.lines.extend(lines[i + 1:end])
                 scan.epoch_fields.append(t)
                 scan.epoch_lines.append(i + 1)
                 scan.epoch_flags.append(flag)
@@ -458,13 +442,10 @@ def _add_regular_epochs(scan: _Scan, block: _Block, lines: list[bytes], found: t
     """Append the regular epochs found by the compiled scan (rinex_obs_kernels.scan_rinex2_epochs)."""
     _, at, flags, counts, first, fields, sats = found
     e0 = len(scan.epoch_flags)
-    per = block.lines_per_record
     block.epoch.extend(range(e0, e0 + len(at)))
     block.start.extend(first.tolist())
     block.count.extend(counts.tolist())
     block.sat_text.append(sats.tobytes())
-    for a, n in zip(first.tolist(), counts.tolist()):
-        block.lines.extend(lines[a:a + n * per])
     calendar = fields[:, :5].astype(np.int64).tolist()
     scan.epoch_fields.extend((*c, sec) for c, sec in zip(calendar, fields[:, 5].tolist()))
     scan.epoch_lines.extend((at + 1).tolist())
@@ -530,7 +511,6 @@ def _scan_rinex2(path: Path, lines: list[bytes], i: int, state: _Header,
                 block.epoch.append(len(scan.epoch_flags))
                 block.start.append(first_obs)
                 block.count.append(n)
-                block.lines.extend(lines[first_obs:end])
                 scan.epoch_fields.append(t)
                 scan.epoch_lines.append(i + 1)
                 scan.epoch_flags.append(flag)
@@ -581,18 +561,22 @@ class _Records:
     fields: np.ndarray       # (n, K, 16) uint8
 
 
-def _records(path: Path, block: _Block, version: float) -> _Records:
+def _records(path: Path, block: _Block, version: float, line_spans: tuple) -> _Records:
+    """The block's records as matrices; `line_spans`: the file's bytes and each line's start and end, from
+    which the record lines are copied into fixed-width rows (compiled: rinex_obs_kernels.pad_rows)."""
     counts = np.asarray(block.count, dtype=np.int64)
     epoch = np.repeat(np.asarray(block.epoch, dtype=np.int64), counts)
     per = block.lines_per_record
-    first_line = _ranges(np.asarray(block.start, dtype=np.int64), counts, per) + 1
+    starts = np.asarray(block.start, dtype=np.int64)
+    first_line = _ranges(starts, counts, per) + 1
+    record_lines = _ranges(starts, counts * per, 1)
     k_max = max((len(v) for v in block.layout.values()), default=0)
     if version >= 3:
-        mat = _pad_lines(block.lines, 3 + _FIELD * k_max)
+        mat = pad_rows(*line_spans, record_lines, 3 + _FIELD * k_max)
         ids = mat[:, :3]
         fields = mat[:, 3:].reshape(len(mat), k_max, _FIELD)
     else:
-        mat = _pad_lines(block.lines, 80)
+        mat = pad_rows(*line_spans, record_lines, 80)
         fields = mat.reshape(len(mat) // per, per * 5, _FIELD)[:, :k_max]
         ids = np.frombuffer(b"".join(block.sat_text), np.uint8).reshape(-1, 3).copy()
         ids[ids[:, 0] == 32, 0] = ord("G")      # RINEX 2: blank system means GPS
@@ -674,22 +658,20 @@ def read_rinex_obs(path: str | Path) -> RawObservations:
     if b"\r" in data:
         data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     lines = data.split(b"\n")
+    buf = np.frombuffer(data, np.uint8)
+    newlines = np.flatnonzero(buf == 10)
+    spans = (buf, np.concatenate(([0], newlines + 1)), np.concatenate((newlines, [len(buf)])))
+    del newlines
     state, first_data = _read_header(p, lines)
     if state.version >= 3:
-        del data
         scan = _scan_rinex3(p, lines, first_data, state)
     else:
-        buf = np.frombuffer(data, np.uint8)
-        newlines = np.flatnonzero(buf == 10)
-        spans = (buf, np.concatenate(([0], newlines + 1)), np.concatenate((newlines, [len(buf)])))
         scan = _scan_rinex2(p, lines, first_data, state, spans)
-        del data, buf, spans
+    del lines
     if not scan.epoch_flags:
         raise InputFileError(p, "contains no (complete) observation epoch")
-    records = [_records(p, b, state.version) for b in scan.blocks if b.count]
-    del lines
-    for b in scan.blocks:
-        b.lines.clear()     # the padded matrices hold the data now; free the line objects before the outputs
+    records = [_records(p, b, state.version, spans) for b in scan.blocks if b.count]
+    del data, buf, spans    # the padded matrices hold the data now: free the file before the outputs
 
     # satellites and observation codes
     all_keys = np.unique(np.concatenate([r.sat_key for r in records]))

@@ -192,3 +192,16 @@ def scan_rinex2_epochs(buf, starts, ends, i, n_lines, lines_per_record):
         k += 1
         i = end
     return i, at[:k], flags[:k], counts[:k], first[:k], fields[:k], sats[:n_sats_text]
+
+
+@njit(cache=True)
+def pad_rows(buf, starts, ends, rows, width):
+    """The given lines of the file as an (n, width) matrix: each line's bytes cut at `width` and padded
+    with blanks (the fixed-column layout the field decoder reads)."""
+    out = np.full((rows.shape[0], width), _SPACE, np.uint8)
+    for k in range(rows.shape[0]):
+        a = starts[rows[k]]
+        n = min(ends[rows[k]] - a, width)
+        for j in range(n):
+            out[k, j] = buf[a + j]
+    return out
