@@ -20,8 +20,11 @@ class StepInfo:
 
 STEPS: tuple[StepInfo, ...] = (
     StepInfo("gnss", (), ("rover/", "base/", "nav/", "events.csv", "survey.json"), ("gnss",), False, ("crs",)),
-    StepInfo("georef", ("gnss",), ("images/", "gcp/", "events.csv", "survey.json"), ("georef",), True,
-             ("crs", "vertical")),
+    # georef reads the PPK of the gnss step, and recomputes it from the observations when the images are
+    # tied to their EXIF times (setting exif_time_offset_s): on a worker of its own (the heavy queue, its own
+    # disk) it needs them in its survey folder as well
+    StepInfo("georef", ("gnss",), ("rover/", "base/", "nav/", "images/", "gcp/", "events.csv", "survey.json"),
+             ("georef",), True, ("crs", "vertical")),
     StepInfo("dense", ("georef",), (), ("dense",), True, ("crs",)),
     StepInfo("volumes", ("dense",), (), ("volumes",), False, ("crs", "stockpiles")),
     StepInfo("report", ("gnss",), ("gcp/",), ("report",), False, ("crs", "stockpiles", "names")),

@@ -151,10 +151,14 @@ class WorkerProc:
     name: str
 
 
-def start_worker(p: Platform, name: str, beat: bool = False, timeout_s: float = 60, **extra) -> WorkerProc:
+def start_worker(p: Platform, name: str, beat: bool = False, timeout_s: float = 60, queues: str = "both",
+                 **extra) -> WorkerProc:
+    """A Celery worker process (solo pool) on the platform's default queue, its heavy queue or both
+    (`queues`); `extra` settings override the platform's (e.g. work_dir: a worker with a disk of its own)."""
     queue = p.env["GEOREF_DEFAULT_QUEUE"]
+    wanted = {"both": f"{queue},{queue}-heavy", "default": queue, "heavy": f"{queue}-heavy"}[queues]
     log = p.data_dir / f"worker-{name}.log"
-    cmd = [PY, "-m", "celery", "-A", "worker.celery_app", "worker", "-Q", f"{queue},{queue}-heavy", "--pool", "solo",
+    cmd = [PY, "-m", "celery", "-A", "worker.celery_app", "worker", "-Q", wanted, "--pool", "solo",
            "--loglevel", "INFO", "-n", f"{name}-{uuid.uuid4().hex[:6]}@%h", "--without-gossip", "--without-mingle",
            "--without-heartbeat"]
     if beat:

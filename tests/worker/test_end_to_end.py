@@ -64,7 +64,10 @@ def env(tmp_path_factory, small_survey):
                       schedule_tick_s=1, **s3_settings)
     server = HTTPServer(("127.0.0.1", 0), Hook)
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    start_worker(p, "w1", beat=True)
+    # as in docker-compose.yml: a worker on the default queue (with beat) and one on the heavy queue, each
+    # with a disk of its own: a step finds what earlier steps made only through the store
+    start_worker(p, "w1", beat=True, queues="default")
+    start_worker(p, "w2", queues="heavy", work_dir=p.data_dir / "heavy-worker")
     a_id, org = add_user(p, "surveyor@example.org", org_admin=True)
     yield p, Api(p, "surveyor@example.org"), server
     server.shutdown()
@@ -145,6 +148,11 @@ def test_survey_through_the_api(env, small_survey):
     final = wait_run(api, run["id"])
     steps = {s["name"]: s for s in final["step_details"]}
     assert final["state"] == "succeeded", (final["error"], steps)
+    # georeferencing and dense on the heavy worker (its own disk), the rest on the default one
+    pid_of = {w.name: w.proc.pid for w in p.workers}
+    for name, s in steps.items():
+        want = "w2" if name in ("georef", "dense") else "w1"
+        assert s["worker"].endswith(f":{pid_of[want]}"), (name, s["worker"], pid_of)
     assert steps["gnss"]["state"] == "succeeded" and steps["report"]["state"] == "succeeded"
 
     # antenna at the 12 camera triggers, all fixed, within centimetres of the simulated truth
