@@ -438,7 +438,7 @@ def _scan_rinex3(path: Path, lines: list[bytes], i: int, state: _Header) -> _Sca
     return scan
 
 
-def _add_regular_epochs(scan: _Scan, block: _Block, lines: list[bytes], found: tuple) -> None:
+def _add_regular_epochs(scan: _Scan, block: _Block, found: tuple) -> None:
     """Append the regular epochs found by the compiled scan (rinex_obs_kernels.scan_rinex2_epochs)."""
     _, at, flags, counts, first, fields, sats = found
     e0 = len(scan.epoch_flags)
@@ -472,7 +472,7 @@ def _scan_rinex2(path: Path, lines: list[bytes], i: int, state: _Header,
         if line_spans is not None:
             found = scan_rinex2_epochs(*line_spans, i, n_lines, block.lines_per_record)
             if len(found[1]):
-                _add_regular_epochs(scan, block, lines, found)
+                _add_regular_epochs(scan, block, found)
             i = found[0]
             if i >= n_lines:
                 break
