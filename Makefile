@@ -26,7 +26,7 @@ run: install
 test: lint test-frontend test-python
 
 lint: install
-	$(PY) -m ruff check --select F,E9 georef_core backend worker tests bench
+	$(PY) -m ruff check --select F,E9 georef_core backend worker tests bench scripts
 
 test-python: install
 	$(PY) -m pytest -q -n 2 tests
