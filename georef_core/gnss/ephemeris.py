@@ -403,9 +403,6 @@ def satellite_states(nav: NavigationData, sat_ids: Sequence[str], t_transmit_gps
     ephemeris changes). Rows without a usable (healthy, unless require_healthy=False) ephemeris have
     valid=False and zeros elsewhere. The selection runs once per satellite for all its rows.
     """
-    if len(sat_ids) == 0:
-        return satellite_states_indexed(nav, [], np.zeros(0, np.int64), t_transmit_gps_s,
-                                        t_select_gps_s=t_select_gps_s, require_healthy=require_healthy)
     names, inverse = np.unique(np.asarray(sat_ids, dtype=str), return_inverse=True)
     return satellite_states_indexed(nav, [str(x) for x in names], inverse.reshape(-1), t_transmit_gps_s,
                                     t_select_gps_s=t_select_gps_s, require_healthy=require_healthy)

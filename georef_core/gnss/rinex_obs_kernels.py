@@ -118,7 +118,8 @@ def scan_rinex2_epochs(buf, starts, ends, i, n_lines, lines_per_record):
     counts = np.empty(cap, np.int64)
     first = np.empty(cap, np.int64)
     fields = np.empty((cap, 6))
-    sats = np.empty(3 * max(cap, 1) * 12, np.uint8)
+    # an epoch of n satellites takes at least n + 1 of the lines walked, so 3 bytes a line always suffice
+    sats = np.empty(3 * cap, np.uint8)
     n_sats_text = 0
     k = 0
     while i < n_lines:
@@ -161,11 +162,6 @@ def scan_rinex2_epochs(buf, starts, ends, i, n_lines, lines_per_record):
         sec = _seconds(buf, a + 15, a + 26)
         if yy < 0 or month < 0 or day < 0 or hour < 0 or minute < 0 or sec < 0.0:
             break
-        need = n_sats_text + 3 * n
-        if need > sats.shape[0]:
-            grown = np.empty(max(2 * sats.shape[0], need), np.uint8)
-            grown[:n_sats_text] = sats[:n_sats_text]
-            sats = grown
         written = 0
         for line in range(i, first_obs):
             la, lb = starts[line], ends[line]
@@ -178,7 +174,7 @@ def scan_rinex2_epochs(buf, starts, ends, i, n_lines, lines_per_record):
         while written < 3 * n:
             sats[n_sats_text + written] = _SPACE
             written += 1
-        n_sats_text = need
+        n_sats_text += 3 * n
         at[k] = i
         flags[k] = flag
         counts[k] = n
