@@ -1,6 +1,8 @@
 """Benchmark: our PPK engine against RTKLIB demo5 (pyrtklib5, EX 2.5.0, in this same process) on the same
 files and configurations. Prints, per case: epochs per second for both and the ratio (ours / demo5, > 1
-means we are faster), fix rates, agreement on epochs both fix, and where our time goes. Both engines read
+means we are faster), fix rates, agreement on epochs both fix (as they are, and judged: with the fixes the
+carrier phase refutes where the two part by more than 5 cm counted as failures, judged_comparison.py), and
+where our time goes. Both engines read
 the files, solve and write a .pos file; the two run alternately and each engine's best time of the repeats
 is used (the least disturbed by other processes on a shared machine).
 
@@ -21,9 +23,10 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from georef_core.gnss.ppk import solve_files  # noqa: E402
+from georef_core.gnss.input_files import load_navigation, load_observations  # noqa: E402
+from georef_core.gnss.judged_comparison import judge_fixes  # noqa: E402
+from georef_core.gnss.ppk import prepare, solve_files  # noqa: E402
 from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
-from georef_core.gnss.solution_compare import compare_pos  # noqa: E402
 from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402
 from tests.gnss.rtklib_cases import reference_cases  # noqa: E402
 
@@ -78,7 +81,8 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp())
     run_ours(cases[0][5], cases[0][2], cases[0][3], cases[0][4], tmp / "warm.pos")
     print(f"{'dataset/case':52s} {'epochs':>6s} {'demo5 ep/s':>10s} {'ours ep/s':>10s} {'ratio':>6s} "
-          f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s}  our time split (s)")
+          f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} | judged: {'fix demo5':>9s} "
+          f"{'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} {'refuted demo5/ours':>18s} | our time split (s)")
     ratios = []
     for ds, name, rover, base, navs, conf, ref in cases:
         d_times, o_times = [], []
@@ -88,12 +92,18 @@ def main() -> int:
             o_times.append(t)
         n = len(sol.time_s)
         td, to = min(d_times), min(o_times)
-        c = compare_pos(read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"))
+        opts = read_rtklib_conf(conf).options
+        data = prepare(load_observations(rover).observations, load_observations(base).observations,
+                       load_navigation(navs), opts)[0]
+        j = judge_fixes(data, opts, read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"))
+        c, g = j.raw, j.judged
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
         ratios.append(td / to)
         print(f"{ds + '/' + name:52s} {n:6d} {n / td:10.0f} {n / to:10.0f} {td / to:6.2f} "
               f"{100 * c.fix_rate_ref:8.1f}% {100 * c.fix_rate:7.1f}% {1000 * c.median_horizontal_m:7.1f} "
-              f"{1000 * c.median_vertical_m:7.1f} {c.n_beyond_5cm:5d}  {split}")
+              f"{1000 * c.median_vertical_m:7.1f} {c.n_beyond_5cm:5d} |         {100 * g.fix_rate_ref:8.1f}% "
+              f"{1000 * g.median_horizontal_m:7.1f} {1000 * g.median_vertical_m:7.1f} {g.n_beyond_5cm:5d} "
+              f"{j.n_refuted_ref:12d}/{j.n_refuted_ours:<5d} | {split}")
     print(f"\nspeed ratio ours/demo5 (epochs per second, >1 = faster): median {statistics.median(ratios):.2f}, "
           f"min {min(ratios):.2f}, max {max(ratios):.2f} over {len(ratios)} cases")
     return 0

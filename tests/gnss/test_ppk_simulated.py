@@ -581,6 +581,46 @@ def test_anchored_phase_check_separates_true_and_offset_positions(drone_case):
     assert inside.sum() > 80 and rms_wrong[inside].min() >= 0.02
 
 
+def _fixed_pos_file(time_s, position_ecef_m):
+    from georef_core.gnss.solution_io import PosFile
+
+    llh = ecef_to_geodetic(position_ecef_m)
+    n = len(time_s)
+    return PosFile(time_s=np.asarray(time_s, float), lat_deg=np.degrees(llh[:, 0]), lon_deg=np.degrees(llh[:, 1]),
+                   height_m=llh[:, 2], status=np.ones(n, dtype=int), n_sats=np.full(n, 8),
+                   sd_enu_m=np.full((n, 3), 0.01), ratio=np.full(n, 10.0))
+
+
+def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_has_it(drone_case):
+    """judged_comparison.judge_fixes (how ours and demo5's fixes are compared on the real data): two fixed
+    solutions of the simulated flight, one true, one offset by 5.2 cm over 100 epochs (a wrong fix held
+    for 20 s). The offset fixes are refuted by the carrier phase and demoted to float, the true ones never,
+    whichever side of the comparison they are on; the judged comparison then has no epoch beyond 5 cm."""
+    from georef_core.gnss.judged_comparison import judge_fixes
+
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    data = prepare(sv.rover, sv.base, nav, opts)[0]
+    truth = sv.rover_truth.position_ecef_m
+    wrong = truth.copy()
+    wrong[301:401] += _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
+    good, bad = _fixed_pos_file(data.time_s, truth), _fixed_pos_file(data.time_s, wrong)
+    same = judge_fixes(data, opts, good, good)
+    assert same.n_apart == 0 and same.n_refuted_ours == same.n_refuted_ref == 0
+    assert same.judged.median_horizontal_m < 1e-6
+    for ours, ref, ours_is_wrong in ((good, bad, False), (bad, good, True)):
+        j = judge_fixes(data, opts, ours, ref)
+        print(j.n_apart, j.n_refuted_ours, j.n_refuted_ref, j.n_unjudged)
+        assert j.raw.n_beyond_5cm == j.n_apart == 100
+        refuted_right, refuted_wrong = (j.n_refuted_ours, j.n_refuted_ref) if ours_is_wrong else \
+            (j.n_refuted_ref, j.n_refuted_ours)
+        assert refuted_wrong == 0 and refuted_right >= 95, j.as_dict()
+        assert j.judged.n_beyond_5cm == j.n_unjudged <= 5
+        assert j.judged.median_horizontal_m < 1e-6
+        refuted_t = j.refuted_ours_time_s if ours_is_wrong else j.refuted_ref_time_s
+        assert set(refuted_t) <= set(data.time_s[301:401])
+
+
 def test_fix_continuity_refuses_a_short_wrong_fix_and_nothing_else(drone_case):
     """fix_continuity.refuse_jumping_fixes on a forward pass of the simulated flight: the correct fixes are
     left as they are; a wrong fix put in by hand (5 epochs offset by 5 cm between correct fixes) gets its
