@@ -94,7 +94,6 @@ def judge_fixes(data: PreparedData, opts: RtkOptions, ours: PosFile, ref: PosFil
     anchor_pos = np.where(both[:, None], 0.5 * (a + b), np.nan)
     refuted_a = np.zeros(len(data.time_s), dtype=bool)
     refuted_b = np.zeros(len(data.time_s), dtype=bool)
-    n_unjudged = 0
     if far.any() and len(anchors):
         rms_a, _ = anchored_rms_m(data, opts, a, far, anchor_pos, anchors)
         rms_b, _ = anchored_rms_m(data, opts, b, far, anchor_pos, anchors)
