@@ -164,6 +164,7 @@ class _Connection:
 async def load(port: int, urls: list[str], token: str, readers: int, duration_s: float, rate: float,
                closed: bool, timeout_s: float) -> tuple[list[float], int, dict]:
     lat: list[float] = []
+    by_url: dict[str, list[float]] = {}
     lost = 0
     codes: dict = {}
     t_end = time.monotonic() + duration_s
@@ -186,6 +187,7 @@ async def load(port: int, urls: list[str], token: str, readers: int, duration_s:
                 codes[status] = codes.get(status, 0) + 1
                 if status in (200, 304):
                     lat.append(dt)
+                    by_url.setdefault(url, []).append(dt)
                     if "etag" in hdr:
                         etags[url] = hdr["etag"]
                 else:
@@ -199,7 +201,15 @@ async def load(port: int, urls: list[str], token: str, readers: int, duration_s:
         conn.close()
 
     await asyncio.gather(*(reader(i) for i in range(readers)))
+    load.by_url = by_url          # per-URL latencies of the last run, for report_by_url
     return lat, lost, codes
+
+
+def report_by_url(by_url: dict) -> None:
+    """p50 / p99 per endpoint: which one makes the tail."""
+    for url, ts in sorted(by_url.items(), key=lambda kv: -statistics.quantiles(kv[1], n=100)[98]):
+        q = statistics.quantiles(ts, n=100, method="inclusive")
+        print(f"  {url.split('/api/v1/')[-1][:70]:70s} n {len(ts):4d}  p50 {q[49] * 1000:6.1f} ms  p99 {q[98] * 1000:6.1f} ms")
 
 
 def report(name: str, lat: list[float], lost: int, codes: dict, duration_s: float) -> None:
@@ -260,6 +270,7 @@ def main() -> int:
         lat, lost, codes = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, False,
                                             args.timeout))
         report(f"open loop, {args.readers} readers x {args.rate:g} req/s", lat, lost, codes, args.duration)
+        report_by_url(load.by_url)
         if args.closed:
             lat, lost, codes = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, True,
                                                 args.timeout))
