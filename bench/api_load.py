@@ -162,7 +162,7 @@ class _Connection:
 
 
 async def load(port: int, urls: list[str], token: str, readers: int, duration_s: float, rate: float,
-               closed: bool, timeout_s: float) -> tuple[list[float], int, dict]:
+               closed: bool, timeout_s: float) -> tuple[list[float], int, dict, dict]:
     lat: list[float] = []
     by_url: dict[str, list[float]] = {}
     lost = 0
@@ -201,8 +201,7 @@ async def load(port: int, urls: list[str], token: str, readers: int, duration_s:
         conn.close()
 
     await asyncio.gather(*(reader(i) for i in range(readers)))
-    load.by_url = by_url          # per-URL latencies of the last run, for report_by_url
-    return lat, lost, codes
+    return lat, lost, codes, by_url
 
 
 def report_by_url(by_url: dict) -> None:
@@ -267,13 +266,13 @@ def main() -> int:
                 seq[url] = statistics.median(ts) * 1000
             print("sequential median latency (ms): " + ", ".join(f"{u.split('/api/v1/')[-1][:48]} {v:.1f}"
                                                                  for u, v in seq.items()), flush=True)
-        lat, lost, codes = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, False,
-                                            args.timeout))
+        lat, lost, codes, by_url = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, False,
+                                                    args.timeout))
         report(f"open loop, {args.readers} readers x {args.rate:g} req/s", lat, lost, codes, args.duration)
-        report_by_url(load.by_url)
+        report_by_url(by_url)
         if args.closed:
-            lat, lost, codes = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, True,
-                                                args.timeout))
+            lat, lost, codes, _ = asyncio.run(load(port, urls, token, args.readers, args.duration, args.rate, True,
+                                                   args.timeout))
             report(f"closed loop, {args.readers} readers", lat, lost, codes, args.duration)
     finally:
         os.killpg(server.pid, signal.SIGTERM)

@@ -29,7 +29,7 @@ from .frames import geodetic_to_ecef_m
 from .phase_consistency import anchored_rms_m
 from .rtk_filter import PreparedData
 from .rtk_options import RtkOptions
-from .solution_compare import Comparison, compare_pos
+from .solution_compare import Comparison, compare_pos, nearest_epochs
 from .solution_io import PosFile
 
 APART_M = 0.05              # two fixes farther apart than this cannot both be right
@@ -59,11 +59,8 @@ class JudgedComparison:
 def positions_on_epochs(pos_file: PosFile, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ECEF positions (E, 3) and fixed flags (E,) of a .pos file on the data epochs `time_s` (NaN / False
     where it has no record), and for each record the epoch index it belongs to (-1: none)."""
-    idx = np.clip(np.searchsorted(time_s, pos_file.time_s), 0, max(len(time_s) - 1, 0))
-    cand = np.stack([np.clip(idx - 1, 0, None), idx])
-    dt = np.abs(time_s[cand] - pos_file.time_s[None, :])
-    best = cand[np.argmin(dt, axis=0), np.arange(len(pos_file.time_s))]
-    ok = np.min(dt, axis=0) < EPOCH_TOLERANCE_S
+    best, dt = nearest_epochs(time_s, pos_file.time_s)
+    ok = dt < EPOCH_TOLERANCE_S
     pos = np.full((len(time_s), 3), np.nan)
     fixed = np.zeros(len(time_s), dtype=bool)
     pos[best[ok]] = geodetic_to_ecef_m(np.radians(pos_file.lat_deg[ok]), np.radians(pos_file.lon_deg[ok]),

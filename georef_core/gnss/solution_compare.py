@@ -31,15 +31,21 @@ def _ecef(p: PosFile) -> np.ndarray:
     return geodetic_to_ecef_m(np.radians(p.lat_deg), np.radians(p.lon_deg), p.height_m)
 
 
+def nearest_epochs(time_s: np.ndarray, query_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each query time: the index of the nearest of the sorted times `time_s` and the distance (s)."""
+    idx = np.clip(np.searchsorted(time_s, query_s), 0, max(len(time_s) - 1, 0))
+    cand = np.stack([np.clip(idx - 1, 0, None), idx])
+    dt = np.abs(time_s[cand] - query_s[None, :])
+    pick = np.argmin(dt, axis=0)
+    cols = np.arange(len(query_s))
+    return cand[pick, cols], dt[pick, cols]
+
+
 def compare_pos(ours: PosFile, ref: PosFile, time_tolerance_s: float = 0.02) -> Comparison:
     """Epochs are matched by time; fix rates are computed over the reference's epochs (an epoch we do not
     output counts as not fixed)."""
-    idx = np.searchsorted(ours.time_s, ref.time_s)
-    idx = np.clip(idx, 0, max(len(ours.time_s) - 1, 0))
-    cand = np.stack([np.clip(idx - 1, 0, None), idx])
-    dt = np.abs(ours.time_s[cand] - ref.time_s[None, :])
-    best = cand[np.argmin(dt, axis=0), np.arange(len(ref.time_s))]
-    matched = np.min(dt, axis=0) <= time_tolerance_s
+    best, dt = nearest_epochs(ours.time_s, ref.time_s)
+    matched = dt <= time_tolerance_s
     n_ref = len(ref.time_s)
     ours_fix = np.zeros(n_ref, dtype=bool)
     ours_fix[matched] = ours.status[best[matched]] == 1
