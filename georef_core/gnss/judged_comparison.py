@@ -7,8 +7,12 @@ most one of them can carry the right integers. Without truth the carrier phase t
 slip, with the "anchors", the epochs both solutions fix within `ANCHOR_AGREEMENT_M` of each other. The fix
 that misfits the anchors' carrier phase at least `DECISIVE_RATIO` times more than the other is refuted,
 and demoted to float before the two solutions are compared again. A fix that cannot be judged (no anchor
-reachable without a slip) loses against one that can. Where the check is not decisive, neither is
-refuted and the disagreement stays in the figures.
+reachable without a slip) loses against one that can. A refutation carries along the same solution's
+chain of consecutive contested fixes whose position changes the time-differenced carrier phase confirms
+(`phase_consistency.epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour
+carries the same integers, so the same error (where a wrong stretch begins or ends, the anchors' check
+alone can be short of decisive). Where the check is not decisive, neither is refuted and the
+disagreement stays in the figures.
 
 The ratio is calibrated where a truth exists: on the 5.3 km car baseline with L1 only (the hardest case
 for the check: the residual ionosphere drifts over the spans to the anchors), demo5's dual-frequency
@@ -26,7 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .frames import geodetic_to_ecef_m
-from .phase_consistency import anchored_rms_m
+from .phase_consistency import JUMP_THRESHOLD_M, anchored_rms_m, epoch_pair_rms_m
 from .rtk_filter import PreparedData
 from .rtk_options import RtkOptions
 from .solution_compare import Comparison, compare_pos, nearest_epochs
@@ -76,9 +80,26 @@ def _demoted(pos_file: PosFile, record_epoch: np.ndarray, refuted: np.ndarray) -
     return replace(pos_file, status=status)
 
 
+def _along_chains(refuted: np.ndarray, contested: np.ndarray, pair_rms_m: np.ndarray, barred: np.ndarray,
+                  chain_m: float) -> np.ndarray:
+    """`refuted` extended to the contested epochs joined to a refuted one by consecutive epoch pairs whose
+    carrier-phase change confirms the solution's position change (pair_rms_m[e]: epochs e - 1 and e), never
+    onto `barred` epochs (where the other solution's fix is refuted)."""
+    out = refuted.copy()
+    linked = np.zeros(len(out), dtype=bool)
+    linked[1:] = contested[1:] & contested[:-1] & (pair_rms_m[1:] < chain_m)      # (e - 1, e) one chain
+    for e in range(1, len(out)):                                                     # forward
+        if linked[e] and out[e - 1] and not barred[e]:
+            out[e] = True
+    for e in range(len(out) - 2, -1, -1):                                            # backward
+        if linked[e + 1] and out[e + 1] and not barred[e]:
+            out[e] = True
+    return out
+
+
 def judge_fixes(data: PreparedData, opts: RtkOptions, ours: PosFile, ref: PosFile,
                 apart_m: float = APART_M, anchor_m: float = ANCHOR_AGREEMENT_M,
-                decisive_ratio: float = DECISIVE_RATIO) -> JudgedComparison:
+                decisive_ratio: float = DECISIVE_RATIO, chain_m: float = JUMP_THRESHOLD_M) -> JudgedComparison:
     """Compare `ours` with `ref` (both solutions of `data`, e.g. read from .pos files) as they are and
     after demoting the fixes the carrier phase refutes where the two part by more than `apart_m`."""
     a, a_fixed, a_rec = positions_on_epochs(ours, data.time_s)
@@ -97,6 +118,10 @@ def judge_fixes(data: PreparedData, opts: RtkOptions, ours: PosFile, ref: PosFil
         fa, fb = np.isfinite(rms_a), np.isfinite(rms_b)
         refuted_a = far & fb & (~fa | (rms_a > decisive_ratio * rms_b))
         refuted_b = far & fa & (~fb | (rms_b > decisive_ratio * rms_a))
+        if refuted_a.any():
+            refuted_a = _along_chains(refuted_a, far, epoch_pair_rms_m(data, opts, a, a_fixed), refuted_b, chain_m)
+        if refuted_b.any():
+            refuted_b = _along_chains(refuted_b, far, epoch_pair_rms_m(data, opts, b, b_fixed), refuted_a, chain_m)
         n_unjudged = int(np.sum(far & ~refuted_a & ~refuted_b))
     else:
         n_unjudged = int(far.sum())

@@ -595,7 +595,9 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
     """judged_comparison.judge_fixes (how ours and demo5's fixes are compared on the real data): two fixed
     solutions of the simulated flight, one true, one offset by 5.2 cm over 100 epochs (a wrong fix held
     for 20 s). The offset fixes are refuted by the carrier phase and demoted to float, the true ones never,
-    whichever side of the comparison they are on; the judged comparison then has no epoch beyond 5 cm."""
+    whichever side of the comparison they are on; the judged comparison then has no epoch beyond 5 cm.
+    Where the check alone is not decisive at the start of the wrong stretch, the refutation carries along
+    the wrong solution's chain of consistent fixes."""
     from georef_core.gnss.judged_comparison import judge_fixes
 
     nav, sv, _tr, _sol = drone_case
@@ -619,6 +621,20 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
         assert j.judged.median_horizontal_m < 1e-6
         refuted_t = j.refuted_ours_time_s if ours_is_wrong else j.refuted_ref_time_s
         assert set(refuted_t) <= set(data.time_s[301:401])
+    # where the wrong stretch begins, the correct solution is disturbed by 3.1 cm for 2 s (the walk's noisy
+    # epochs 771 and 829): there both misfit the anchors, within the factor 2, and the check alone leaves
+    # those epochs undecided. The wrong fixes there carry the same integers as the refuted ones after them
+    # (their position changes match the carrier phase's), so the refutation carries along that chain.
+    disturbed = truth.copy()
+    disturbed[301:311] -= 0.6 * (wrong[301] - truth[301])
+    noisy = _fixed_pos_file(data.time_s, disturbed)
+    alone = judge_fixes(data, opts, noisy, bad, chain_m=0.0)
+    chained = judge_fixes(data, opts, noisy, bad)
+    print(alone.n_refuted_ref, alone.n_unjudged, chained.n_refuted_ref, chained.n_unjudged)
+    assert alone.n_refuted_ours == chained.n_refuted_ours == 0
+    assert alone.n_unjudged >= 5, alone.as_dict()
+    assert chained.n_refuted_ref == 100 and chained.n_unjudged == 0, chained.as_dict()
+    assert chained.judged.n_beyond_5cm == 0
 
 
 def test_fix_continuity_refuses_a_short_wrong_fix_and_nothing_else(drone_case):

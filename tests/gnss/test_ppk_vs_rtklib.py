@@ -112,9 +112,19 @@ def test_car_single_frequency_beats_demo5_against_dual_frequency_truth(case, tmp
     assert ours_bad <= 0.05 and ours_bad <= demo5_bad, (c_ours.as_dict(), c_demo5.as_dict())
     assert c_ours.median_horizontal_m <= 0.01
     # against demo5's L1 solution the carrier phase refutes some of demo5's fixes where the two part, never
-    # ours (the ratio it needs, 2, was calibrated on these epochs against the dual-frequency truth)
-    j = _judged(case, ours, ref)[0]
+    # ours (the ratio it needs, 2, was calibrated on these epochs against the dual-frequency truth), and
+    # the refuted fix is the one farther from that truth: at every epoch but one of the 0-94 refuted per
+    # case, where both lie within 3.1 cm of the truth (a fix refuted through its chain)
+    j, data, _ = _judged(case, ours, ref)
     assert j.n_refuted_ours == 0, j.as_dict()
+    t = data.time_s
+    true_pos, true_fixed, _ = positions_on_epochs(truth, t)
+    refuted = np.isin(t, j.refuted_ref_time_s) & true_fixed
+    off_ours = np.linalg.norm(positions_on_epochs(ours, t)[0] - true_pos, axis=1)
+    off_demo5 = np.linalg.norm(positions_on_epochs(ref, t)[0] - true_pos, axis=1)
+    miscalled = refuted & (off_demo5 < off_ours)
+    assert miscalled.sum() <= max(1, 0.02 * refuted.sum()), (miscalled.sum(), refuted.sum())
+    assert np.all(np.maximum(off_ours, off_demo5)[miscalled] < 0.035), np.nonzero(miscalled)
 
 
 @pytest.mark.parametrize("case", UBLOX, ids=_ids(UBLOX))
@@ -134,13 +144,13 @@ def test_ublox_walk_fixes_as_often_as_demo5_and_the_carrier_phase_sides_with_our
     # what is left: demo5's wrong stretches and one satellite demo5 cannot fix (docs/gnss.md)
     assert c.median_horizontal_m <= 0.005 and c.median_vertical_m <= 0.005, c.as_dict()
     # the issue's criteria with a wrong fix counted as a failure (judged by the carrier phase, ours and
-    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; 1-3 epochs beyond 5 cm the check cannot decide
+    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; 1-2 epochs beyond 5 cm the check cannot decide
     j, data, opts = _judged(case, ours, ref)
     print(case[1], j.as_dict())
     assert j.n_refuted_ours == 0, j.as_dict()
     assert j.judged.fix_rate >= j.judged.fix_rate_ref, j.as_dict()
     assert j.judged.median_horizontal_m <= 0.003 and j.judged.median_vertical_m <= 0.008, j.as_dict()
-    assert j.judged.n_beyond_5cm <= 3, j.as_dict()
+    assert j.judged.n_beyond_5cm <= 2, j.as_dict()
     mine, mine_fixed, _ = positions_on_epochs(ours, data.time_s)
     theirs, theirs_fixed, _ = positions_on_epochs(ref, data.time_s)
     both = mine_fixed & theirs_fixed
