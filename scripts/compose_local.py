@@ -1,8 +1,8 @@
 """Run the application services of docker-compose.yml as local processes, without Docker, and push the
 simulated demo survey through them with the REST API.
 
-The development machines have the Docker client but no daemon, and no container registry is reachable
-from them, so `docker compose up` cannot run here (docs/deploy.md). This script runs what the compose
+Where Docker cannot run (no daemon, or no container registry and no stand-in images: docs/deploy.md),
+this script runs what the compose
 file would run inside its containers: the api service's command from the Dockerfile (migrations, then
 uvicorn with API_WORKERS processes), the `worker` (queue georef, prefork pool of 4), `worker-heavy` (queue
 heavy, concurrency 1) and `beat` commands exactly as written there, each with the compose file's GEOREF_
@@ -19,6 +19,11 @@ worker-heavy) and compares the figures with the simulator's truth. Exit status 0
 matched.
 
     .venv/bin/python scripts/compose_local.py [--keep] [--timeout 900]
+
+With --running URL it starts nothing and walks through a real `docker compose up -d` deployment instead
+(docs/deploy.md; scripts/standin_base_images.sh where no container registry is reachable):
+
+    .venv/bin/python scripts/compose_local.py --running http://127.0.0.1:8080
 """
 
 from __future__ import annotations
@@ -130,13 +135,127 @@ def survey_archive(root: Path, seed: int) -> tuple[bytes, dict, dict]:
     return buf.getvalue(), meta, truth
 
 
+def exercise(api, create_admin, service_of, check_alive, root: Path, seed: int, timeout_s: float,
+             email: str = ADMIN_EMAIL) -> bool:
+    """What an operator and a GIS integrator do, against the API client `api` (base URL .../api/v1):
+    create the admin (`create_admin()`), log in, create a token, a site with the survey's stockpiles, upload
+    the simulated survey in chunks, run every step, check which service ran each (`service_of(worker id)`)
+    and compare the check points and volumes with the simulator's truth. True when everything matched."""
+    create_admin(email)
+    ok = True
+    login = api.post("/auth/login", json={"email": email, "password": ADMIN_PASSWORD})
+    login.raise_for_status()
+    tok = api.post("/tokens", json={"name": "compose-local", "scopes": ["read", "write", "admin"]},
+                   headers={"X-CSRF-Token": login.json()["csrf_token"]})
+    tok.raise_for_status()
+    api.cookies.clear()
+    api.headers["Authorization"] = f"Bearer {tok.json()['token']}"
+
+    data, meta, truth = survey_archive(root, seed)
+    site = api.post("/sites", json={"name": "Compose site", "crs": meta["project_crs"]}).json()
+    for f in truth["features"]:
+        ring = [[c[0], c[1]] for c in f["geometry"]["coordinates"][0]]
+        api.post(f"/sites/{site['id']}/stockpiles", json={
+            "name": f["properties"]["name"], "outline": {"type": "Polygon", "coordinates": [ring]},
+            "base": "plane"}).raise_for_status()
+    survey = api.post(f"/sites/{site['id']}/surveys", json={"name": "Compose flight"}).json()
+    up = api.post(f"/surveys/{survey['id']}/uploads", json={
+        "filename": "survey.zip", "size": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+        "kind": "archive"}).json()
+    chunk = 1 << 20
+    for offset in range(0, len(data), chunk):
+        part = data[offset:offset + chunk]
+        api.put(f"/uploads/{up['id']}", content=part, headers={
+            "Content-Range": f"bytes {offset}-{offset + len(part) - 1}/{len(data)}"}).raise_for_status()
+    api.post(f"/uploads/{up['id']}/complete").raise_for_status()
+    check = api.get(f"/surveys/{survey['id']}/check").json()
+    if not check["ok"]:
+        raise RuntimeError(f"survey check: {check['problems']}")
+    run = api.post(f"/surveys/{survey['id']}/runs", json={}).json()
+    t_run = time.monotonic()
+    while run["state"] not in ("succeeded", "failed", "cancelled"):
+        check_alive()
+        if time.monotonic() - t_run > timeout_s:
+            raise RuntimeError(f"run not finished in {timeout_s:.0f} s: {run['state']}")
+        time.sleep(2)
+        run = api.get(f"/runs/{run['id']}").json()
+    print(f"run {run['state']} in {time.monotonic() - t_run:.0f} s", flush=True)
+    ok &= run["state"] == "succeeded"
+
+    for s in run["step_details"]:
+        service = service_of(s.get("worker") or "")
+        want = "worker-heavy" if s["name"] in ("georef", "dense") else "worker"
+        ok &= service == want and s["state"] == "succeeded"
+        print(f"  step {s['name']:8s} {s['state']:9s} on {service} ({s.get('worker')})"
+              f"{'' if service == want else f'  <- expected {want}'}")
+        if s.get("error"):
+            print(f"    error: {s['error'][:1500]}")
+    summary = api.get(f"/sites/{site['id']}/summary").json()
+    rmse = (summary.get("check_rmse_m") or {}).get("3d")
+    ok &= rmse is not None and rmse < 0.05
+    print(f"check points (site summary): {json.dumps(summary.get('check_rmse_m'))}")
+    got = api.get(f"/runs/{run['id']}/results/volumes")
+    vols = {v["name"]: v for v in got.json()["stockpiles"]} if got.status_code == 200 else {}
+    for f in truth["features"]:
+        name, true_m3 = f["properties"]["name"], f["properties"].get("volume_m3")
+        v = vols.get(name)
+        if v is None or true_m3 is None:
+            ok = False
+            print(f"  volume {name}: missing")
+            continue
+        err = v["volume_m3"] - true_m3
+        good = abs(err) <= max(3 * (v["sigma_m3"] or 0.0), 0.02 * true_m3)
+        ok &= good
+        print(f"  volume {name}: {v['volume_m3']:.2f} m3 +- {v['sigma_m3']:.2f} (truth {true_m3:.2f}, "
+              f"{err:+.2f}){'' if good else '  <- outside 3 sigma and 2 %'}")
+    return ok
+
+
+def exercise_running(url: str, seed: int, timeout_s: float) -> int:
+    """The same walk-through against a deployment already up (`docker compose up -d` in this folder),
+    through its front door `url` (the frontend service's nginx): the admin is created the way docs/deploy.md
+    says (`docker compose run --rm api python -m backend.create_user ...`), and each step's worker id (the
+    container's host name) is matched with the containers of `docker compose ps`."""
+    import httpx
+
+    def compose(*argv: str, **kw) -> subprocess.CompletedProcess:
+        return subprocess.run(["docker", "compose", *argv], cwd=REPO, check=True, **kw)
+
+    def create_admin(email: str):
+        compose("run", "--rm", "-T", "-e", f"GEOREF_NEW_PASSWORD={ADMIN_PASSWORD}", "api",
+                "python", "-m", "backend.create_user", email, "--org-admin")
+
+    containers = {name: compose("ps", "-q", name, capture_output=True, text=True).stdout.split()
+                  for name in ("worker", "worker-heavy")}
+
+    def service_of(worker_id: str) -> str:
+        host = worker_id.rsplit(":", 1)[0]
+        return next((n for n, ids in containers.items() if host and any(i.startswith(host) for i in ids)), "?")
+
+    root = Path(tempfile.mkdtemp(prefix="georef-compose-"))
+    t0 = time.monotonic()
+    api = httpx.Client(base_url=url.rstrip("/") + "/api/v1", timeout=60)
+    ok = exercise(api, create_admin, service_of, lambda: None, root, seed, timeout_s,
+                  email=f"admin-{int(time.time())}@example.org")
+    print(f"{'OK' if ok else 'FAILED'}: the docker compose deployment at {url} ({time.monotonic() - t0:.0f} s)")
+    import shutil
+
+    shutil.rmtree(root, ignore_errors=True)
+    return 0 if ok else 1
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--timeout", type=float, default=900, help="seconds for the run to finish")
     ap.add_argument("--seed", type=int, default=42, help="seed of the simulated survey")
     ap.add_argument("--redis-db", type=int, default=13)
     ap.add_argument("--keep", action="store_true", help="keep the data folders and logs")
+    ap.add_argument("--running", metavar="URL",
+                    help="start nothing: walk through the docker compose deployment already up at URL "
+                         "(e.g. http://127.0.0.1:8080; GEOREF_COOKIE_SECURE=false without TLS in front)")
     args = ap.parse_args()
+    if args.running:
+        return exercise_running(args.running, args.seed, args.timeout)
     import httpx
     import psycopg
     import redis
@@ -198,75 +317,21 @@ def main() -> int:
         print(f"services up in {time.monotonic() - t_start:.0f} s", flush=True)
 
         env = service_env(compose, "api", mapping, root / "api")
-        subprocess.run([PY, "-m", "backend.create_user", ADMIN_EMAIL, "--org-admin"], check=True, cwd=REPO,
-                       env={**os.environ, **env, "GEOREF_NEW_PASSWORD": ADMIN_PASSWORD, "PYTHONPATH": str(REPO)})
-        login = api.post("/auth/login", json={"email": ADMIN_EMAIL, "password": ADMIN_PASSWORD})
-        login.raise_for_status()
-        tok = api.post("/tokens", json={"name": "compose-local", "scopes": ["read", "write", "admin"]},
-                       headers={"X-CSRF-Token": login.json()["csrf_token"]})
-        tok.raise_for_status()
-        api.cookies.clear()
-        api.headers["Authorization"] = f"Bearer {tok.json()['token']}"
 
-        data, meta, truth = survey_archive(root, args.seed)
-        site = api.post("/sites", json={"name": "Compose site", "crs": meta["project_crs"]}).json()
-        for f in truth["features"]:
-            ring = [[c[0], c[1]] for c in f["geometry"]["coordinates"][0]]
-            api.post(f"/sites/{site['id']}/stockpiles", json={
-                "name": f["properties"]["name"], "outline": {"type": "Polygon", "coordinates": [ring]},
-                "base": "plane"}).raise_for_status()
-        survey = api.post(f"/sites/{site['id']}/surveys", json={"name": "Compose flight"}).json()
-        up = api.post(f"/surveys/{survey['id']}/uploads", json={
-            "filename": "survey.zip", "size": len(data), "sha256": hashlib.sha256(data).hexdigest(),
-            "kind": "archive"}).json()
-        chunk = 1 << 20
-        for offset in range(0, len(data), chunk):
-            part = data[offset:offset + chunk]
-            api.put(f"/uploads/{up['id']}", content=part, headers={
-                "Content-Range": f"bytes {offset}-{offset + len(part) - 1}/{len(data)}"}).raise_for_status()
-        api.post(f"/uploads/{up['id']}/complete").raise_for_status()
-        check = api.get(f"/surveys/{survey['id']}/check").json()
-        if not check["ok"]:
-            raise RuntimeError(f"survey check: {check['problems']}")
-        run = api.post(f"/surveys/{survey['id']}/runs", json={}).json()
-        t_run = time.monotonic()
-        while run["state"] not in ("succeeded", "failed", "cancelled"):
-            stack.check_alive()
-            if time.monotonic() - t_run > args.timeout:
-                raise RuntimeError(f"run not finished in {args.timeout:.0f} s: {run['state']}")
-            time.sleep(2)
-            run = api.get(f"/runs/{run['id']}").json()
-        print(f"run {run['state']} in {time.monotonic() - t_run:.0f} s", flush=True)
-        ok &= run["state"] == "succeeded"
+        def create_admin(email: str):
+            subprocess.run([PY, "-m", "backend.create_user", email, "--org-admin"], check=True, cwd=REPO,
+                           env={**os.environ, **env, "GEOREF_NEW_PASSWORD": ADMIN_PASSWORD,
+                                "PYTHONPATH": str(REPO)})
 
-        groups = {name: pids_of_group(p.pid) for name, p in stack.procs.items()}
-        for s in run["step_details"]:
-            pid = int(s["worker"].rsplit(":", 1)[1]) if s.get("worker") else None
-            service = next((n for n, pids in groups.items() if pid in pids), "?")
-            want = "worker-heavy" if s["name"] in ("georef", "dense") else "worker"
-            ok &= service == want and s["state"] == "succeeded"
-            print(f"  step {s['name']:8s} {s['state']:9s} on {service} (pid {pid})"
-                  f"{'' if service == want else f'  <- expected {want}'}")
-            if s.get("error"):
-                print(f"    error: {s['error'][:1500]}")
-        summary = api.get(f"/sites/{site['id']}/summary").json()
-        rmse = (summary.get("check_rmse_m") or {}).get("3d")
-        ok &= rmse is not None and rmse < 0.05
-        print(f"check points (site summary): {json.dumps(summary.get('check_rmse_m'))}")
-        got = api.get(f"/runs/{run['id']}/results/volumes")
-        vols = {v["name"]: v for v in got.json()["stockpiles"]} if got.status_code == 200 else {}
-        for f in truth["features"]:
-            name, true_m3 = f["properties"]["name"], f["properties"].get("volume_m3")
-            v = vols.get(name)
-            if v is None or true_m3 is None:
-                ok = False
-                print(f"  volume {name}: missing")
-                continue
-            err = v["volume_m3"] - true_m3
-            good = abs(err) <= max(3 * (v["sigma_m3"] or 0.0), 0.02 * true_m3)
-            ok &= good
-            print(f"  volume {name}: {v['volume_m3']:.2f} m3 +- {v['sigma_m3']:.2f} (truth {true_m3:.2f}, "
-                  f"{err:+.2f}){'' if good else '  <- outside 3 sigma and 2 %'}")
+        groups = {}
+
+        def service_of(worker_id: str) -> str:
+            if not groups:
+                groups.update({name: pids_of_group(p.pid) for name, p in stack.procs.items()})
+            pid = int(worker_id.rsplit(":", 1)[1]) if worker_id else None
+            return next((n for n, pids in groups.items() if pid in pids), "?")
+
+        ok = exercise(api, create_admin, service_of, stack.check_alive, root, args.seed, args.timeout)
         print(f"{'OK' if ok else 'FAILED'}: services of docker-compose.yml as local processes "
               f"({time.monotonic() - t_start:.0f} s in all)")
     except Exception as exc:   # noqa: BLE001 - report, tear down, fail

@@ -38,7 +38,14 @@ from backend.storage.base import sha256_of_file
 from . import pipeline
 
 log = logging.getLogger("georef.worker")
-WORKER_ID = f"{socket.gethostname()}:{os.getpid()}"
+
+
+def worker_id() -> str:
+    """host:pid of the process running the step (a prefork pool's child, not the parent that imported
+    this module: the id is taken when the step is claimed)."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
 PROGRESS_INTERVAL_S = 0.5
 MANIFEST = ".georef_outputs.json"
 
@@ -232,7 +239,7 @@ def execute_step(run_id: str, step: str) -> str:
     from georef_core.errors import GeorefError, InputFileError, StepCancelled
 
     settings, db, storage = _env()
-    claim = jobs.claim_step(db, run_id, step, WORKER_ID)
+    claim = jobs.claim_step(db, run_id, step, worker_id())
     if not isinstance(claim, jobs.Claim):
         if claim == "cancelled":
             _send(settings, db, storage, [("run-finished", run_id)])
@@ -319,7 +326,7 @@ def release_after_transient(run_id: str, step: str, exc: BaseException) -> None:
             from backend.models.base import utcnow
 
             s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.name == step,
-                                            RunStep.state == "running", RunStep.worker == WORKER_ID)
+                                            RunStep.state == "running", RunStep.worker == worker_id())
                       .values(state="queued", queued_at=utcnow(), error=f"retrying after: {exc}"))
     except Exception as inner:   # the database itself may be what is down: the reaper will requeue
         log.warning("could not release step %s of run %s: %s", step, run_id, inner)

@@ -103,7 +103,12 @@ def test_frontend_service_serves_the_built_ui(compose):
     import json
 
     mounts = compose["services"]["frontend"]["volumes"]
-    assert any(m.startswith("./frontend/dist:") for m in mounts)
+    dist = [m.split(":")[1] for m in mounts if m.startswith("./frontend/dist:")]
+    assert dist
+    # nginx serves the folder the UI is mounted in: its compiled-in default root differs between builds
+    # (the official image's is /etc/nginx/html), so the server block must name it (found by docker compose up)
+    nginx = compose["configs"]["nginx_conf"]["content"]
+    assert re.search(r"^\s*root\s+" + re.escape(dist[0]) + r"\s*;", nginx, re.M), nginx
     scripts = json.loads((REPO / "frontend" / "package.json").read_text())["scripts"]
     assert "build" in scripts
     assert "frontend/dist" in (REPO / "docs" / "deploy.md").read_text() or "npm run build" in (
