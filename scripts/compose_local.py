@@ -2,14 +2,14 @@
 simulated demo survey through them with the REST API.
 
 Where Docker cannot run (no daemon, or no container registry and no stand-in images: docs/deploy.md),
-this script runs what the compose
-file would run inside its containers: the api service's command from the Dockerfile (migrations, then
-uvicorn with API_WORKERS processes), the `worker` (queue georef, prefork pool of 4), `worker-heavy` (queue
-heavy, concurrency 1) and `beat` commands exactly as written there, each with the compose file's GEOREF_
-environment and its own data folder. The hosts of the compose network are mapped to this machine's
-services: `postgres` to PostgreSQL on 127.0.0.1 (a fresh database, dropped afterwards), `redis` to Redis
-on 127.0.0.1 (one database number, flushed), `minio` to moto's S3 server (MinIO needs Docker). Not run:
-the images' build, nginx (the `frontend` service) and the containers' isolation.
+this script runs what the compose file would run inside its containers: the api service's command from
+the Dockerfile (migrations, then uvicorn with API_WORKERS processes), the `worker` (queue georef, prefork
+pool of 4), `worker-heavy` (queue heavy, concurrency 1) and `beat` commands exactly as written there, each
+with the compose file's GEOREF_ environment and its own data folder. The hosts of the compose network
+are mapped to this machine's services: `postgres` to PostgreSQL on 127.0.0.1 (a fresh database, dropped
+afterwards), `redis` to Redis on 127.0.0.1 (one database number, flushed), `minio` to moto's S3 server
+(MinIO needs Docker). Not run: the images' build, nginx (the `frontend` service) and the containers'
+isolation.
 
 Then, as an operator and a GIS integrator would: `python -m backend.create_user` (what
 `docker compose run --rm api ...` runs), log in, create an API token, create a site with the survey's
@@ -138,7 +138,7 @@ def survey_archive(root: Path, seed: int) -> tuple[bytes, dict, dict]:
 def exercise(api, create_admin, service_of, check_alive, root: Path, seed: int, timeout_s: float,
              email: str = ADMIN_EMAIL) -> bool:
     """What an operator and a GIS integrator do, against the API client `api` (base URL .../api/v1):
-    create the admin (`create_admin()`), log in, create a token, a site with the survey's stockpiles, upload
+    create the admin (`create_admin(email)`), log in, create a token, a site with the survey's stockpiles, upload
     the simulated survey in chunks, run every step, check which service ran each (`service_of(worker id)`)
     and compare the check points and volumes with the simulator's truth. True when everything matched."""
     create_admin(email)
