@@ -3,9 +3,9 @@
 `solution_compare.compare_pos` takes the reference (RTKLIB demo5) as it is: where demo5 fixes wrongly, our
 correct fix shows as a disagreement. Where two fixes of the same epoch lie more than `APART_M` apart, at
 most one of them can carry the right integers. Without truth the carrier phase tells which
-(`phase_consistency.anchored_rms_m`): both positions are compared, over signals tracked without a gap or a
-slip, with the "anchors", the epochs both solutions fix within `ANCHOR_AGREEMENT_M` of each other. The fix
-that misfits the anchors' carrier phase at least `DECISIVE_RATIO` times more than the other is refuted,
+(`phase_consistency.anchored_rms_m`, a misfit free of the choice of reference satellite): both positions
+are compared, over signals tracked without a gap or a slip, with the "anchors", the epochs both
+solutions fix within `ANCHOR_AGREEMENT_M` of each other. The fix that misfits the anchors' carrier phase at least `DECISIVE_RATIO` times more than the other is refuted,
 and demoted to float before the two solutions are compared again. A fix that cannot be judged (no anchor
 reachable without a slip) loses against one that can. A refutation carries along the same solution's
 chain of consecutive contested fixes whose position changes the time-differenced carrier phase confirms
@@ -16,8 +16,9 @@ disagreement stays in the figures.
 
 The ratio is calibrated where a truth exists: on the 5.3 km car baseline with L1 only (the hardest case
 for the check: the residual ionosphere drifts over the spans to the anchors), demo5's dual-frequency
-solution taken as truth, the check picked the fix farther from the truth at 26 of 189 epochs, all with
-ratios below 1.7; at every epoch with a ratio of 2 or more it picked the right one.
+solution taken as truth, the check gave the larger misfit to the fix nearer the truth at 3 of 188
+epochs, all with ratios below 1.72; at each of the 119 with a ratio of 2 or more it picked the right one
+(2026-11-25; docs/gnss.md).
 
 The rule is symmetric: a refuted fix of ours counts against us exactly as one of demo5's counts against
 demo5 (tests/gnss/test_ppk_vs_rtklib.py asserts that ours are never refuted; docs/gnss.md).

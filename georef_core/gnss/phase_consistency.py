@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fix_continuity import consecutive_jump_rms, dd_change_rms
+from .fix_continuity import consecutive_jump_rms
 from .rtk_filter import PreparedData, RtkFilter
 from .rtk_kernels import phase_residuals
 from .rtk_options import RtkOptions
@@ -46,6 +46,27 @@ def inconsistent_fixed_epochs(data: PreparedData, opts: RtkOptions, position_ece
     return np.nonzero(rms > threshold_m)[0]
 
 
+def reference_free_change_rms(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarray) -> float:
+    """RMS (m) of the change of the residuals (S, F) from r0 to r1, NaN where a signal is missing, free of
+    the choice of reference satellite: per system and band the changes minus their mean, pooled over
+    (number of signals - 1) degrees of freedom. The sum of squares equals the double differences' quadratic
+    form with their full covariance (equal single-difference variances), so no satellite enters twice;
+    double differences against one reference satellite (fix_continuity.dd_change_rms) put that satellite's
+    own error into every term (on the u-blox walk a GLONASS reference 2-5 cm off its neighbours made both
+    engines' fixes of epoch 771 look alike: docs/gnss.md). For independent errors of standard deviation s
+    in the change of each single difference this estimates s (the reference-based RMS about s * sqrt(2)).
+    NaN when no system and band has two signals."""
+    change = r1 - r0
+    acc, dof = 0.0, 0
+    for b in range(change.shape[1]):
+        for sys in np.unique(sys_code):
+            x = change[(sys_code == sys) & np.isfinite(change[:, b]), b]
+            if len(x) >= 2:
+                acc += float(np.sum((x - x.mean()) ** 2))
+                dof += len(x) - 1
+    return float(np.sqrt(acc / dof)) if dof else np.nan
+
+
 def _span_signals(d, lo: int, hi: int, unbroken: np.ndarray) -> np.ndarray:
     """(S, F) signals observed at every epoch lo..hi with no slip flagged at lo + 1..hi."""
     return (unbroken[hi + 1] - unbroken[lo] == hi + 1 - lo) & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1])
@@ -54,8 +75,8 @@ def _span_signals(d, lo: int, hi: int, unbroken: np.ndarray) -> np.ndarray:
 def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray, fixed: np.ndarray,
                    anchor_ecef_m: np.ndarray, anchors: np.ndarray, max_anchors: int = MAX_ANCHORS,
                    min_signals: int = MIN_SPAN_SIGNALS) -> tuple[np.ndarray, np.ndarray]:
-    """For every `fixed` epoch e: the RMS (m) over the double differences of the change of DD phase
-    residual between anchor epoch a (at anchor_ecef_m[a]) and e (at position_ecef_m[e]), over the signals
+    """For every `fixed` epoch e: the RMS (m) of the change of DD phase residual (reference-free:
+    reference_free_change_rms) between anchor epoch a (at anchor_ecef_m[a]) and e (at position_ecef_m[e]), over the signals
     tracked without a gap or slip from a to e, the median over the (at most max_anchors) nearest anchors
     with at least min_signals such signals. A position consistent with the anchors' carrier phase gives
     the phase noise plus the change of multipath over the span (a centimetre or two over minutes on a
@@ -79,9 +100,13 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
             ok = _span_signals(d, lo, hi, unbroken)
             if ok.sum() < min_signals:
                 continue
-            r_a = phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]
-            r_e = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
-            change = dd_change_rms(r_a, r_e, d.sys_code, cfg.n_systems)
+            # the DD residuals with each reference satellite's own (zero) entry: every signal of the span
+            # enters once, the references' offsets cancel in reference_free_change_rms
+            r_a = np.where(ok, np.nan_to_num(
+                phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]), np.nan)
+            r_e = np.where(ok, np.nan_to_num(
+                phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]), np.nan)
+            change = reference_free_change_rms(r_a, r_e, d.sys_code)
             if np.isfinite(change):
                 rms.append(float(change))
             if len(rms) == max_anchors:

@@ -621,10 +621,11 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
         assert j.judged.median_horizontal_m < 1e-6
         refuted_t = j.refuted_ours_time_s if ours_is_wrong else j.refuted_ref_time_s
         assert set(refuted_t) <= set(data.time_s[301:401])
-    # where the wrong stretch begins, the correct solution is disturbed by 3.1 cm for 2 s (the walk's noisy
-    # epochs 771 and 829): there both misfit the anchors, within the factor 2, and the check alone leaves
-    # those epochs undecided. The wrong fixes there carry the same integers as the refuted ones after them
-    # (their position changes match the carrier phase's), so the refutation carries along that chain.
+    # where the wrong stretch begins, the correct solution is disturbed by 3.1 cm for 2 s (as where demo5's
+    # wrong stretches on the walk begin and end): there both misfit the anchors, within the factor 2, and
+    # the check alone leaves those epochs undecided. The wrong fixes there carry the same integers as the
+    # refuted ones after them (their position changes match the carrier phase's), so the refutation
+    # carries along that chain.
     disturbed = truth.copy()
     disturbed[301:311] -= 0.6 * (wrong[301] - truth[301])
     noisy = _fixed_pos_file(data.time_s, disturbed)

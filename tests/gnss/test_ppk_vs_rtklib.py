@@ -113,7 +113,7 @@ def test_car_single_frequency_beats_demo5_against_dual_frequency_truth(case, tmp
     assert c_ours.median_horizontal_m <= 0.01
     # against demo5's L1 solution the carrier phase refutes some of demo5's fixes where the two part, never
     # ours (the ratio it needs, 2, was calibrated on these epochs against the dual-frequency truth), and
-    # the refuted fix is the one farther from that truth: at every epoch but one of the 0-94 refuted per
+    # the refuted fix is the one farther from that truth: at every epoch but one of the 0-99 refuted per
     # case, where both lie within 3.1 cm of the truth (a fix refuted through its chain)
     j, data, _ = _judged(case, ours, ref)
     assert j.n_refuted_ours == 0, j.as_dict()
@@ -144,13 +144,14 @@ def test_ublox_walk_fixes_as_often_as_demo5_and_the_carrier_phase_sides_with_our
     # what is left: demo5's wrong stretches and one satellite demo5 cannot fix (docs/gnss.md)
     assert c.median_horizontal_m <= 0.005 and c.median_vertical_m <= 0.005, c.as_dict()
     # the issue's criteria with a wrong fix counted as a failure (judged by the carrier phase, ours and
-    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; 1-2 epochs beyond 5 cm the check cannot decide
+    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; none beyond 5 cm in the forward runs, and in
+    # the combined runs the one epoch (3.4 m apart) that no anchor reaches without a slip
     j, data, opts = _judged(case, ours, ref)
     print(case[1], j.as_dict())
     assert j.n_refuted_ours == 0, j.as_dict()
     assert j.judged.fix_rate >= j.judged.fix_rate_ref, j.as_dict()
     assert j.judged.median_horizontal_m <= 0.003 and j.judged.median_vertical_m <= 0.008, j.as_dict()
-    assert j.judged.n_beyond_5cm <= 2, j.as_dict()
+    assert j.judged.n_beyond_5cm <= (1 if "_comb_" in case[1] else 0), j.as_dict()
     mine, mine_fixed, _ = positions_on_epochs(ours, data.time_s)
     theirs, theirs_fixed, _ = positions_on_epochs(ref, data.time_s)
     both = mine_fixed & theirs_fixed
