@@ -76,9 +76,9 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
                    anchor_ecef_m: np.ndarray, anchors: np.ndarray, max_anchors: int = MAX_ANCHORS,
                    min_signals: int = MIN_SPAN_SIGNALS) -> tuple[np.ndarray, np.ndarray]:
     """For every `fixed` epoch e: the RMS (m) of the change of DD phase residual (reference-free:
-    reference_free_change_rms) between anchor epoch a (at anchor_ecef_m[a]) and e (at position_ecef_m[e]), over the signals
-    tracked without a gap or slip from a to e, the median over the (at most max_anchors) nearest anchors
-    with at least min_signals such signals. A position consistent with the anchors' carrier phase gives
+    reference_free_change_rms) between anchor epoch a (at anchor_ecef_m[a]) and e (at
+    position_ecef_m[e]), over the signals tracked without a gap or slip from a to e, the median over the
+    (at most max_anchors) nearest anchors with at least min_signals such signals. A position consistent with the anchors' carrier phase gives
     the phase noise plus the change of multipath over the span (a centimetre or two over minutes on a
     u-blox walk); a fix that differs from the anchors' in its integers gives decimetres.
     Returns (rms (E,), NaN where not fixed or no anchor qualifies; number of anchors used (E,))."""
