@@ -8,10 +8,11 @@ are compared, over signals tracked without a gap or a slip, with the "anchors", 
 solutions fix within `ANCHOR_AGREEMENT_M` of each other. The fix that misfits the anchors' carrier phase
 at least `DECISIVE_RATIO` times more than the other is refuted, and demoted to float before the two
 solutions are compared again. A fix that cannot be judged (no anchor reachable without a slip) loses
-against one that can. A refutation carries along the same solution's chain of consecutive contested fixes whose position changes the time-differenced carrier phase confirms
-(`phase_consistency.epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour
-carries the same integers, so the same error (where a wrong stretch begins or ends, the anchors' check
-alone can be short of decisive). Where the check is not decisive, neither is refuted and the
+against one that can. A refutation carries along the same solution's chain of consecutive contested
+fixes whose position changes the time-differenced carrier phase confirms (`phase_consistency.
+epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour carries the same
+integers, so the same error (where a wrong stretch begins or ends, the anchors' check alone can be short
+of decisive). Where the check is not decisive, neither is refuted and the
 disagreement stays in the figures.
 
 The ratio is calibrated where a truth exists: on the 5.3 km car baseline with L1 only (the hardest case

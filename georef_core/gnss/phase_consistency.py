@@ -46,9 +46,11 @@ def inconsistent_fixed_epochs(data: PreparedData, opts: RtkOptions, position_ece
     return np.nonzero(rms > threshold_m)[0]
 
 
-def reference_free_change_rms(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarray) -> float:
-    """RMS (m) of the change of the residuals (S, F) from r0 to r1, NaN where a signal is missing, free of
-    the choice of reference satellite: per system and band the changes minus their mean, pooled over
+def reference_free_change_rms(r0: np.ndarray, r1: np.ndarray, ok: np.ndarray, sys_code: np.ndarray) -> float:
+    """RMS (m) of the change of the DD residuals (S, F) from r0 to r1 over the signals `ok` (S, F), the
+    residuals as rtk_kernels.phase_residuals gives them (NaN at each system's reference satellite, which is
+    counted with its own residual, zero; the two epochs' references may differ, their offsets cancel), free
+    of the choice of reference satellite: per system and band the changes minus their mean, pooled over
     (number of signals - 1) degrees of freedom. The sum of squares equals the double differences' quadratic
     form with their full covariance (equal single-difference variances), so no satellite enters twice;
     double differences against one reference satellite (fix_continuity.dd_change_rms) put that satellite's
@@ -56,11 +58,12 @@ def reference_free_change_rms(r0: np.ndarray, r1: np.ndarray, sys_code: np.ndarr
     engines' fixes of epoch 771 look alike: docs/gnss.md). For independent errors of standard deviation s
     in the change of each single difference this estimates s (the reference-based RMS about s * sqrt(2)).
     NaN when no system and band has two signals."""
-    change = r1 - r0
+    change = np.where(ok, np.nan_to_num(r1) - np.nan_to_num(r0), np.nan)
+    systems = np.unique(sys_code)
     acc, dof = 0.0, 0
     for b in range(change.shape[1]):
-        for sys in np.unique(sys_code):
-            x = change[(sys_code == sys) & np.isfinite(change[:, b]), b]
+        for sys in systems:
+            x = change[(sys_code == sys) & ok[:, b], b]
             if len(x) >= 2:
                 acc += float(np.sum((x - x.mean()) ** 2))
                 dof += len(x) - 1
@@ -78,9 +81,10 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
     """For every `fixed` epoch e: the RMS (m) of the change of DD phase residual (reference-free:
     reference_free_change_rms) between anchor epoch a (at anchor_ecef_m[a]) and e (at
     position_ecef_m[e]), over the signals tracked without a gap or slip from a to e, the median over the
-    (at most max_anchors) nearest anchors with at least min_signals such signals. A position consistent with the anchors' carrier phase gives
-    the phase noise plus the change of multipath over the span (a centimetre or two over minutes on a
-    u-blox walk); a fix that differs from the anchors' in its integers gives decimetres.
+    (at most max_anchors) nearest anchors with at least min_signals such signals. A position consistent
+    with the anchors' carrier phase gives the phase noise plus the change of multipath over the span (a
+    centimetre or two over minutes on a u-blox walk); a fix that differs from the anchors' in its integers
+    gives decimetres.
     Returns (rms (E,), NaN where not fixed or no anchor qualifies; number of anchors used (E,))."""
     flt = RtkFilter(data, opts)
     d, cfg = flt.arrays(), flt.config()
@@ -100,13 +104,9 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
             ok = _span_signals(d, lo, hi, unbroken)
             if ok.sum() < min_signals:
                 continue
-            # the DD residuals with each reference satellite's own (zero) entry: every signal of the span
-            # enters once, the references' offsets cancel in reference_free_change_rms
-            r_a = np.where(ok, np.nan_to_num(
-                phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]), np.nan)
-            r_e = np.where(ok, np.nan_to_num(
-                phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]), np.nan)
-            change = reference_free_change_rms(r_a, r_e, d.sys_code)
+            r_a = phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]
+            r_e = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
+            change = reference_free_change_rms(r_a, r_e, ok, d.sys_code)
             if np.isfinite(change):
                 rms.append(float(change))
             if len(rms) == max_anchors:
