@@ -4,7 +4,8 @@ means we are faster), fix rates, agreement on epochs both fix (as they are, and 
 carrier phase refutes where the two part by more than 5 cm counted as failures, judged_comparison.py), and
 where our time goes. Both engines read
 the files, solve and write a .pos file; the two run alternately and each engine's best time of the repeats
-is used (the least disturbed by other processes on a shared machine).
+is used (the least disturbed by other processes on a shared machine). For forward (or backward) runs both
+engines also run the other way once, untimed: the judge's witnesses where the carrier phase is not decisive.
 
     python bench/gnss_vs_rtklib.py            # the seven cases of shared/data/README.md
     python bench/gnss_vs_rtklib.py --all      # every reference case
@@ -28,7 +29,7 @@ from georef_core.gnss.judged_comparison import judge_fixes  # noqa: E402
 from georef_core.gnss.ppk import prepare, solve_files  # noqa: E402
 from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
 from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402
-from tests.gnss.rtklib_cases import reference_cases  # noqa: E402
+from tests.gnss.rtklib_cases import reference_cases, reversed_conf, run_demo5  # noqa: E402
 
 DEFAULT = [("cssrlib_2021_265_car_kinematic", "kinematic_l1l2_fwd_fah"),
            ("cssrlib_2021_265_car_kinematic", "kinematic_l1_fwd_fah"),
@@ -37,22 +38,6 @@ DEFAULT = [("cssrlib_2021_265_car_kinematic", "kinematic_l1l2_fwd_fah"),
            ("ublox_m8p_20181004_walk", "kinematic_l1_fwd_fah"),
            ("ublox_m8p_20181004_walk", "kinematic_l1_comb_fah"),
            ("rtklib_gsi_0759_3040_static", "static_l1l2_fwd_fah")]
-
-
-def run_demo5(conf, files, out) -> float:
-    import pyrtklib5 as rtk
-
-    rtk.resetsysopts()
-    rtk.loadopts(str(conf), rtk.sysopts[0])
-    popt, sopt, fopt = rtk.prcopt_t(), rtk.solopt_t(), rtk.filopt_t()
-    rtk.getsysopts(popt, sopt, fopt)
-    t0 = time.perf_counter()
-    rc = rtk.postpos(rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, [str(f) for f in files], len(files),
-                     str(out), "", "")
-    elapsed = time.perf_counter() - t0
-    if rc != 0:
-        raise RuntimeError(f"demo5 postpos failed ({rc}) on {conf}")
-    return elapsed
 
 
 def run_ours(conf, rover, base, navs, out):
@@ -82,7 +67,8 @@ def main() -> int:
     run_ours(cases[0][5], cases[0][2], cases[0][3], cases[0][4], tmp / "warm.pos")
     print(f"{'dataset/case':52s} {'epochs':>6s} {'demo5 ep/s':>10s} {'ours ep/s':>10s} {'ratio':>6s} "
           f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} | judged: {'fix demo5':>9s} "
-          f"{'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} {'refuted demo5/ours':>18s} | our time split (s)")
+          f"{'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} {'refuted demo5/ours':>18s} {'by reverse':>10s} "
+          "| our time split (s)")
     ratios = []
     for ds, name, rover, base, navs, conf, ref in cases:
         d_times, o_times = [], []
@@ -95,7 +81,14 @@ def main() -> int:
         opts = read_rtklib_conf(conf).options
         data = prepare(load_observations(rover).observations, load_observations(base).observations,
                        load_navigation(navs), opts)[0]
-        j = judge_fixes(data, opts, read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"))
+        # forward or backward runs: both engines' passes the other way are the judge's witnesses (untimed)
+        rev_conf = reversed_conf(conf, tmp)
+        reverse = {}
+        if rev_conf is not None:
+            run_demo5(rev_conf, [rover, base, *navs], tmp / "demo5_rev.pos")
+            run_ours(rev_conf, rover, base, navs, tmp / "ours_rev.pos")
+            reverse = {"ours_reverse": read_pos(tmp / "ours_rev.pos"), "ref_reverse": read_pos(tmp / "demo5_rev.pos")}
+        j = judge_fixes(data, opts, read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"), **reverse)
         c, g = j.raw, j.judged
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
         ratios.append(td / to)
@@ -103,7 +96,7 @@ def main() -> int:
               f"{100 * c.fix_rate_ref:8.1f}% {100 * c.fix_rate:7.1f}% {1000 * c.median_horizontal_m:7.1f} "
               f"{1000 * c.median_vertical_m:7.1f} {c.n_beyond_5cm:5d} |         {100 * g.fix_rate_ref:8.1f}% "
               f"{1000 * g.median_horizontal_m:7.1f} {1000 * g.median_vertical_m:7.1f} {g.n_beyond_5cm:5d} "
-              f"{j.n_refuted_ref:12d}/{j.n_refuted_ours:<5d} | {split}")
+              f"{j.n_refuted_ref:12d}/{j.n_refuted_ours:<5d} {j.n_refuted_by_reverse:10d} | {split}")
     print(f"\nspeed ratio ours/demo5 (epochs per second, >1 = faster): median {statistics.median(ratios):.2f}, "
           f"min {min(ratios):.2f}, max {max(ratios):.2f} over {len(ratios)} cases")
     return 0

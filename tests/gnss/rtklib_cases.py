@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import re
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,3 +43,37 @@ def reference_cases(build: str = "demo5_ex251"):
             out.append((ds, conf.stem, root / ds / rover, root / ds / base, [root / ds / n for n in navs], conf,
                         conf.with_suffix(".pos")))
     return out
+
+
+_SOLTYPE_LINE = re.compile(r"^(pos1-soltype\s*=\s*)(\w+)", re.MULTILINE)
+_REVERSE = {"forward": "backward", "backward": "forward"}
+
+
+def reversed_conf(conf: Path, out_dir: Path) -> Path | None:
+    """A copy of an rnx2rtkp configuration in out_dir with its filter direction reversed (forward <->
+    backward), everything else as it is; None for a combined (or unstated) solution type."""
+    text = Path(conf).read_text()
+    m = _SOLTYPE_LINE.search(text)
+    if m is None or m.group(2).lower() not in _REVERSE:
+        return None
+    out = Path(out_dir) / f"{Path(conf).stem}_reversed.conf"
+    out.write_text(text[:m.start(2)] + _REVERSE[m.group(2).lower()] + text[m.end(2):])
+    return out
+
+
+def run_demo5(conf, files, out) -> float:
+    """RTKLIB demo5 (pyrtklib5, in this process) on `files` with the configuration `conf`, writing the .pos
+    `out`; returns the seconds postpos took."""
+    import pyrtklib5 as rtk
+
+    rtk.resetsysopts()
+    rtk.loadopts(str(conf), rtk.sysopts[0])
+    popt, sopt, fopt = rtk.prcopt_t(), rtk.solopt_t(), rtk.filopt_t()
+    rtk.getsysopts(popt, sopt, fopt)
+    t0 = time.perf_counter()
+    rc = rtk.postpos(rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, [str(f) for f in files], len(files),
+                     str(out), "", "")
+    elapsed = time.perf_counter() - t0
+    if rc != 0:
+        raise RuntimeError(f"demo5 postpos failed ({rc}) on {conf}")
+    return elapsed

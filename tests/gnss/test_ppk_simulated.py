@@ -638,6 +638,45 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
     assert chained.judged.n_beyond_5cm == 0
 
 
+def test_judged_comparison_takes_the_reverse_passes_as_witnesses_where_the_carrier_phase_is_not_decisive(drone_case):
+    """judge_fixes with each engine's pass the other way (judged_comparison._refuted_by_reverse): with the
+    carrier phase made never decisive, a solution offset by 5.2 cm over 100 epochs is refuted when the
+    other solution, its own reverse pass and the other's reverse pass agree within 1 cm, whichever side it
+    is on; nothing is refuted when its own reverse pass sides with it, or is not fixed there."""
+    import dataclasses
+
+    from georef_core.gnss.judged_comparison import judge_fixes
+
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    data = prepare(sv.rover, sv.base, nav, opts)[0]
+    truth = sv.rover_truth.position_ecef_m
+    rng = np.random.default_rng(11)
+    rot = _rot(sv.base_position_ecef_m)
+    wrong = truth.copy()
+    wrong[301:401] += rot.T @ np.array([0.03, -0.03, 0.03])
+    good, bad = _fixed_pos_file(data.time_s, truth), _fixed_pos_file(data.time_s, wrong)
+    good_rev = _fixed_pos_file(data.time_s, truth + rng.normal(0.0, 0.001, truth.shape))
+    bad_rev_true = _fixed_pos_file(data.time_s, truth + rng.normal(0.0, 0.001, truth.shape))
+    never = {"decisive_ratio": np.inf, "chain_m": 0.0}
+    for ours, ref, ours_rev, ref_rev, ours_is_wrong in ((good, bad, good_rev, bad_rev_true, False),
+                                                        (bad, good, bad_rev_true, good_rev, True)):
+        alone = judge_fixes(data, opts, ours, ref, **never)
+        assert alone.n_unjudged == 100 and alone.n_refuted_ours == alone.n_refuted_ref == 0, alone.as_dict()
+        j = judge_fixes(data, opts, ours, ref, ours_reverse=ours_rev, ref_reverse=ref_rev, **never)
+        refuted_wrong_side, refuted_right_side = (j.n_refuted_ours, j.n_refuted_ref) if ours_is_wrong else \
+            (j.n_refuted_ref, j.n_refuted_ours)
+        assert refuted_wrong_side == 100 and refuted_right_side == 0 and j.n_refuted_by_reverse == 100, j.as_dict()
+        assert j.judged.n_beyond_5cm == 0
+    # the wrong solution's own reverse pass repeats its offset: two engines, each consistent with itself
+    j = judge_fixes(data, opts, good, bad, ours_reverse=good_rev, ref_reverse=bad, **never)
+    assert j.n_refuted_ref == j.n_refuted_ours == 0 and j.n_unjudged == 100, j.as_dict()
+    # its reverse pass is float there: no witness
+    floating = dataclasses.replace(bad_rev_true, status=np.where(np.arange(len(data.time_s)) < 351, 2, 1))
+    j = judge_fixes(data, opts, good, bad, ours_reverse=good_rev, ref_reverse=floating, **never)
+    assert j.n_refuted_ref == 50 and j.n_refuted_ours == 0 and j.n_unjudged == 50, j.as_dict()
+
+
 def test_fix_continuity_refuses_a_short_wrong_fix_and_nothing_else(drone_case):
     """fix_continuity.refuse_jumping_fixes on a forward pass of the simulated flight: the correct fixes are
     left as they are; a wrong fix put in by hand (5 epochs offset by 5 cm between correct fixes) gets its
