@@ -4,17 +4,17 @@
 correct fix shows as a disagreement. Where two fixes of the same epoch lie more than `APART_M` apart, at
 most one of them can carry the right integers. Without truth the carrier phase tells which
 (`phase_consistency.anchored_rms_m`, a misfit free of the choice of reference satellite): both positions
-are compared, over signals tracked without a gap or a slip, with the "anchors", the epochs both
-solutions fix within `ANCHOR_AGREEMENT_M` of each other. The fix that misfits the anchors' carrier phase
-at least `DECISIVE_RATIO` times more than the other is refuted, and demoted to float before the two
-solutions are compared again. A fix that cannot be judged (no anchor reachable without a slip) loses
-against one that can. Where the carrier phase is not decisive and the two solutions are passes of one
-direction (forward, or backward), each engine's pass in the other direction is a witness: when three of
-the four passes (two engines, two directions) fix the epoch within `ANCHOR_AGREEMENT_M` of each other and
-the fourth lies more than `APART_M` from them, the fourth is refuted (its own engine, run the other way
-through the same data, contradicts it; the usual cause is the filter's history, a wrong or partial fix
-carried from earlier epochs). A refutation carries along the same solution's chain of consecutive contested
-fixes whose position changes the time-differenced carrier phase confirms (`phase_consistency.
+are compared, over signals tracked without a gap or a slip, with the "anchors", the epochs both solutions
+fix within `ANCHOR_AGREEMENT_M` of each other. The fix that misfits the anchors' carrier phase at least
+`DECISIVE_RATIO` times more than the other is refuted, and demoted to float before the two solutions are
+compared again. A fix that cannot be judged (no anchor reachable without a slip) loses against one that
+can. Where the carrier phase is not decisive and the two solutions are passes of one direction (forward,
+or backward), each engine's pass in the other direction is a witness: when three of the four passes (two
+engines, two directions) fix the epoch within `ANCHOR_AGREEMENT_M` of each other, the fourth (the
+contested fix, more than `APART_M` from the other engine's) is refuted (its own engine, run the other way
+through the same data, contradicts it; what the two directions do not share is the filter's history, a wrong or partial fix
+carried from earlier epochs). A refutation carries along the same solution's chain of consecutive
+contested fixes whose position changes the time-differenced carrier phase confirms (`phase_consistency.
 epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour carries the same
 integers, so the same error (where a wrong stretch begins or ends, the anchors' check alone can be short
 of decisive). Where neither the check nor the witnesses decide, neither fix is refuted and the
