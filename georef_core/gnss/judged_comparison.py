@@ -12,13 +12,13 @@ can. Where the carrier phase is not decisive and the two solutions are passes of
 or backward), each engine's pass in the other direction is a witness: when three of the four passes (two
 engines, two directions) fix the epoch within `ANCHOR_AGREEMENT_M` of each other, the fourth (the
 contested fix, more than `APART_M` from the other engine's) is refuted (its own engine, run the other way
-through the same data, contradicts it; what the two directions do not share is the filter's history, a wrong or partial fix
-carried from earlier epochs). A refutation carries along the same solution's chain of consecutive
-contested fixes whose position changes the time-differenced carrier phase confirms (`phase_consistency.
-epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour carries the same
-integers, so the same error (where a wrong stretch begins or ends, the anchors' check alone can be short
-of decisive). Where neither the check nor the witnesses decide, neither fix is refuted and the
-disagreement stays in the figures.
+through the same data, contradicts it; what the two directions do not share is the filter's history, a
+wrong or partial fix carried from earlier epochs). A refutation carries along the same solution's chain of
+consecutive contested fixes whose position changes the time-differenced carrier phase confirms
+(`phase_consistency. epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour
+carries the same integers, so the same error (where a wrong stretch begins or ends, the anchors' check
+alone can be short of decisive). Where neither the check nor the witnesses decide, neither fix is refuted
+and the disagreement stays in the figures.
 
 The ratio is calibrated where a truth exists: on the 5.3 km car baseline with L1 only (the hardest case
 for the check: the residual ionosphere drifts over the spans to the anchors), demo5's dual-frequency
