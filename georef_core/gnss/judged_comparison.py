@@ -15,7 +15,7 @@ contested fix, more than `APART_M` from the other engine's) is refuted (its own 
 through the same data, contradicts it; what the two directions do not share is the filter's history, a
 wrong or partial fix carried from earlier epochs). A refutation carries along the same solution's chain of
 consecutive contested fixes whose position changes the time-differenced carrier phase confirms
-(`phase_consistency. epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour
+(`phase_consistency.epoch_pair_rms_m` within `phase_consistency.JUMP_THRESHOLD_M`): such a neighbour
 carries the same integers, so the same error (where a wrong stretch begins or ends, the anchors' check
 alone can be short of decisive). Where neither the check nor the witnesses decide, neither fix is refuted
 and the disagreement stays in the figures.
