@@ -638,6 +638,51 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
     assert chained.judged.n_beyond_5cm == 0
 
 
+def test_fix_continuity_checks_two_fixed_runs_across_a_short_float_gap(drone_case):
+    """fix_continuity across float epochs (bridged_jump_rms): a wrong run (5 epochs offset by 5.2 cm) with
+    3 float epochs on either side has no fixed neighbour, so the consecutive check cannot see it; the
+    bridged check compares it with the correct runs 0.8 s away over the signals tracked through the gaps
+    and refuses it, and only it. Without bridging (max_gap_s = 0) it stays; left correct, it stays."""
+    import dataclasses
+
+    from georef_core.gnss.fix_continuity import bridged_jump_rms, refuse_jumping_fixes
+    from georef_core.gnss.rtk_filter import STATUS_FLOAT
+
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    data = prepare(sv.rover, sv.base, nav, opts)[0]
+    flt = RtkFilter(data, opts)
+    arrays, config = flt.arrays(), flt.config()
+    clean = flt.run()
+    fixed = np.nonzero(clean.status == STATUS_FIX)[0]
+    start = fixed[len(fixed) // 2]
+    assert np.all(clean.status[start - 15:start + 20] == STATUS_FIX)
+    offset = _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
+
+    def gapped(shift):
+        out = dataclasses.replace(clean, status=clean.status.copy(), position_ecef_m=clean.position_ecef_m.copy(),
+                                  covariance_ecef_m2=clean.covariance_ecef_m2.copy(),
+                                  n_fixed_amb=clean.n_fixed_amb.copy())
+        for gap in (slice(start - 3, start), slice(start + 5, start + 8)):
+            out.status[gap] = STATUS_FLOAT
+            out.position_ecef_m[gap] = clean.float_position_ecef_m[gap]
+        out.position_ecef_m[start:start + 5] += shift
+        return out
+
+    wrong = gapped(offset)
+    rms, prev = bridged_jump_rms(arrays, config, wrong.status == STATUS_FIX, wrong.position_ecef_m, 10.0)
+    assert prev[start] == start - 4 and prev[start + 8] == start + 4
+    assert rms[start] > 0.04 and rms[start + 8] > 0.04, (rms[start], rms[start + 8])
+    out, refused = refuse_jumping_fixes(arrays, config, wrong)
+    assert refused == 5 and np.all(out.status[start:start + 5] == STATUS_FLOAT)
+    assert np.sum((out.status == STATUS_FIX) != (gapped(0.0).status == STATUS_FIX)) == 5
+    assert refuse_jumping_fixes(arrays, config, gapped(offset), max_gap_s=0.0)[1] == 0
+    right = gapped(0.0)
+    rms, _ = bridged_jump_rms(arrays, config, right.status == STATUS_FIX, right.position_ecef_m, 10.0)
+    assert rms[start] < 0.01 and rms[start + 8] < 0.01, (rms[start], rms[start + 8])
+    assert refuse_jumping_fixes(arrays, config, right)[1] == 0
+
+
 def test_judged_comparison_takes_the_reverse_passes_as_witnesses_where_the_carrier_phase_is_not_decisive(drone_case):
     """judge_fixes with each engine's pass the other way (judged_comparison._refuted_by_reverse): with the
     carrier phase made never decisive, a solution offset by 5.2 cm over 100 epochs is refuted when the

@@ -158,14 +158,15 @@ def test_ublox_walk_fixes_as_often_as_demo5_and_the_carrier_phase_sides_with_our
     # what is left: demo5's wrong stretches and one satellite demo5 cannot fix (docs/gnss.md)
     assert c.median_horizontal_m <= 0.005 and c.median_vertical_m <= 0.005, c.as_dict()
     # the issue's criteria with a wrong fix counted as a failure (judged by the carrier phase, ours and
-    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; none beyond 5 cm in the forward runs, and in
-    # the combined runs the one epoch (3.4 m apart) that no anchor reaches without a slip
+    # demo5's alike): median 0.2-1.7 mm H / 0.7-1.8 mm V; none beyond 5 cm. (Until our fixes were checked
+    # across short float gaps, fix_continuity.bridged_jump_rms, the combined runs kept epoch 262: 3.4 m
+    # apart, no anchor reaches it, and our fix there contradicted our own fixes 3 s earlier by 49 mm.)
     j, data, opts = _judged(case, ours, ref, tmp_path)
     print(case[1], j.as_dict())
     assert j.n_refuted_ours == 0, j.as_dict()
     assert j.judged.fix_rate >= j.judged.fix_rate_ref, j.as_dict()
     assert j.judged.median_horizontal_m <= 0.003 and j.judged.median_vertical_m <= 0.008, j.as_dict()
-    assert j.judged.n_beyond_5cm <= (1 if "_comb_" in case[1] else 0), j.as_dict()
+    assert j.judged.n_beyond_5cm == 0, j.as_dict()
     mine, mine_fixed, _ = positions_on_epochs(ours, data.time_s)
     theirs, theirs_fixed, _ = positions_on_epochs(ref, data.time_s)
     both = mine_fixed & theirs_fixed
