@@ -26,7 +26,7 @@ from numba import njit
 from .rtk_filter import STATUS_FIX, STATUS_FLOAT, FilterOutput
 from .rtk_kernels import phase_residuals
 
-JUMP_THRESHOLD_M = 0.04    # RMS change of the DD phase residuals between two consecutive fixed epochs
+JUMP_THRESHOLD_M = 0.04    # RMS change of the DD phase residuals between two fixed epochs (consecutive or bridged)
 MAX_REFUSED_RUN = 10       # fixed runs up to this many epochs may be refused
 MIN_SIGNALS = 5            # signals tracked without a slip over both epochs, references included
 MAX_BRIDGED_GAP_S = 10.0   # two fixed runs this close (float epochs between them) are checked against each other
@@ -114,8 +114,8 @@ def _fixed_runs(fixed: np.ndarray, jump: np.ndarray) -> np.ndarray:
     return run
 
 
-def refuse_jumping_fixes(d, c, out: FilterOutput, threshold_m: float = JUMP_THRESHOLD_M,
-                         max_run: int = MAX_REFUSED_RUN, max_gap_s: float = MAX_BRIDGED_GAP_S) -> tuple[FilterOutput, int]:
+def refuse_jumping_fixes(d, c, out: FilterOutput, threshold_m: float = JUMP_THRESHOLD_M, max_run: int = MAX_REFUSED_RUN,
+                         max_gap_s: float = MAX_BRIDGED_GAP_S) -> tuple[FilterOutput, int]:
     """`out` with the fixed runs the carrier phase contradicts given back their float solution (in place),
     and the number of epochs refused. d, c: the pass's FilterArrays and FilterConfig."""
     if out.float_position_ecef_m is None:

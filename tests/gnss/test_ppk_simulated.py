@@ -638,6 +638,17 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
     assert chained.judged.n_beyond_5cm == 0
 
 
+def _forward_pass_and_offset(drone_case):
+    """The simulated flight's forward filter pass: (FilterArrays, FilterConfig, FilterOutput, indices of its
+    fixed epochs, a 5.2 cm ECEF offset for wrong fixes put in by hand)."""
+    nav, sv, _tr, _sol = drone_case
+    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
+    flt = RtkFilter(prepare(sv.rover, sv.base, nav, opts)[0], opts)
+    clean = flt.run()
+    offset = _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
+    return flt.arrays(), flt.config(), clean, np.nonzero(clean.status == STATUS_FIX)[0], offset
+
+
 def test_fix_continuity_checks_two_fixed_runs_across_a_short_float_gap(drone_case):
     """fix_continuity across float epochs (bridged_jump_rms): a wrong run (5 epochs offset by 5.2 cm) with
     3 float epochs on either side has no fixed neighbour, so the consecutive check cannot see it; the
@@ -648,16 +659,9 @@ def test_fix_continuity_checks_two_fixed_runs_across_a_short_float_gap(drone_cas
     from georef_core.gnss.fix_continuity import bridged_jump_rms, refuse_jumping_fixes
     from georef_core.gnss.rtk_filter import STATUS_FLOAT
 
-    nav, sv, _tr, _sol = drone_case
-    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
-    data = prepare(sv.rover, sv.base, nav, opts)[0]
-    flt = RtkFilter(data, opts)
-    arrays, config = flt.arrays(), flt.config()
-    clean = flt.run()
-    fixed = np.nonzero(clean.status == STATUS_FIX)[0]
+    arrays, config, clean, fixed, offset = _forward_pass_and_offset(drone_case)
     start = fixed[len(fixed) // 2]
     assert np.all(clean.status[start - 15:start + 20] == STATUS_FIX)
-    offset = _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
 
     def gapped(shift):
         out = dataclasses.replace(clean, status=clean.status.copy(), position_ecef_m=clean.position_ecef_m.copy(),
@@ -731,18 +735,11 @@ def test_fix_continuity_refuses_a_short_wrong_fix_and_nothing_else(drone_case):
 
     from georef_core.gnss.fix_continuity import MAX_REFUSED_RUN, refuse_jumping_fixes
 
-    nav, sv, _tr, _sol = drone_case
-    opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
-    data = prepare(sv.rover, sv.base, nav, opts)[0]
-    flt = RtkFilter(data, opts)
-    arrays, config = flt.arrays(), flt.config()
-    clean = flt.run()
-    fixed = np.nonzero(clean.status == STATUS_FIX)[0]
+    arrays, config, clean, fixed, offset = _forward_pass_and_offset(drone_case)
     assert len(fixed) > 500
     out, refused = refuse_jumping_fixes(arrays, config, dataclasses.replace(clean, status=clean.status.copy()))
     assert refused == 0
 
-    offset = _rot(sv.base_position_ecef_m).T @ np.array([0.03, -0.03, 0.03])
     start = fixed[len(fixed) // 2]
     assert np.all(clean.status[start - 3:start + 8] == STATUS_FIX)
     wrong = dataclasses.replace(clean, status=clean.status.copy(), position_ecef_m=clean.position_ecef_m.copy(),
