@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from georef_core.gnss.frames import ecef_to_enu_rotation, geodetic_to_ecef_m
+from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic, geodetic_to_ecef_m
 from georef_core.gnss.judged_comparison import judge_fixes, positions_on_epochs
 from georef_core.gnss.ppk import solve_files
 from georef_core.gnss.rtk_options import read_rtklib_conf
@@ -123,23 +123,6 @@ def test_car_single_frequency_beats_demo5_against_dual_frequency_truth(case, tmp
     demo5_bad = c_demo5.n_beyond_5cm / max(c_demo5.n_both_fixed, 1)
     assert ours_bad <= 0.05 and ours_bad <= demo5_bad, (c_ours.as_dict(), c_demo5.as_dict())
     assert c_ours.median_horizontal_m <= 0.01
-    # those 3-4 epochs (51, 59-61: 5.0-6.0 cm, vertical) are where that truth contradicts itself: demo5's
-    # dual-frequency backward pass lies 4-5 cm from its forward one there. Where the two passes agree within
-    # 1 cm (their mean taken as truth) none of our fixes is beyond 5 cm; 4-106 of demo5's L1 fixes are
-    l1l2_conf = shared_gnss_dir() / "reference" / "demo5_ex251" / ds / "kinematic_l1l2_fwd_fah.conf"
-    run_demo5(reversed_conf(l1l2_conf, tmp_path), [case[2], case[3], *case[4]], tmp_path / "l1l2_backward.pos")
-    t = truth.time_s
-    fwd, fwd_fixed, _ = positions_on_epochs(truth, t)
-    bwd, bwd_fixed, _ = positions_on_epochs(read_pos(tmp_path / "l1l2_backward.pos"), t)
-    agree = fwd_fixed & bwd_fixed & (np.linalg.norm(fwd - bwd, axis=1) < 0.01)
-    assert agree.sum() >= 200, agree.sum()
-    consensus = 0.5 * (fwd + bwd)
-    off = {}
-    for who, sol in (("ours", ours), ("demo5", ref)):
-        pos, fixed, _ = positions_on_epochs(sol, t)
-        off[who] = np.linalg.norm(pos - consensus, axis=1)[fixed & agree]
-    assert len(off["ours"]) == agree.sum() and np.all(off["ours"] <= 0.05), np.sort(off["ours"])[-5:]
-    assert np.sum(off["demo5"] > 0.05) >= 1, np.sort(off["demo5"])[-5:]
     # against demo5's L1 solution the carrier phase refutes some of demo5's fixes where the two part, never
     # ours (the ratio it needs, 2, was calibrated on these epochs against the dual-frequency truth), and
     # the refuted fix is the one farther from that truth: at every epoch but one of the 0-100 refuted per
@@ -150,12 +133,43 @@ def test_car_single_frequency_beats_demo5_against_dual_frequency_truth(case, tmp
     assert j.n_unjudged <= 1, j.as_dict()
     t = data.time_s
     true_pos, true_fixed, _ = positions_on_epochs(truth, t)
+    mine, mine_fixed, _ = positions_on_epochs(ours, t)
+    theirs, theirs_fixed, _ = positions_on_epochs(ref, t)
     refuted = np.isin(t, j.refuted_ref_time_s) & true_fixed
-    off_ours = np.linalg.norm(positions_on_epochs(ours, t)[0] - true_pos, axis=1)
-    off_demo5 = np.linalg.norm(positions_on_epochs(ref, t)[0] - true_pos, axis=1)
+    off_ours = np.linalg.norm(mine - true_pos, axis=1)
+    off_demo5 = np.linalg.norm(theirs - true_pos, axis=1)
     miscalled = refuted & (off_demo5 < off_ours)
     assert miscalled.sum() <= max(1, 0.02 * refuted.sum()), (miscalled.sum(), refuted.sum())
     assert np.all(np.maximum(off_ours, off_demo5)[miscalled] < 0.035), np.nonzero(miscalled)
+
+    # our 3-4 epochs beyond 5 cm of that truth (51, 59-61: 5.0-6.0 cm, vertical) are where it contradicts
+    # itself: demo5's dual-frequency backward pass lies 4-5 cm from its forward one there. Where the two
+    # passes agree within 1 cm (their mean taken as truth) none of our fixes is beyond 5 cm; 4-106 of
+    # demo5's L1 fixes are
+    l1l2_conf = shared_gnss_dir() / "reference" / "demo5_ex251" / ds / "kinematic_l1l2_fwd_fah.conf"
+    run_demo5(reversed_conf(l1l2_conf, tmp_path), [case[2], case[3], *case[4]], tmp_path / "l1l2_backward.pos")
+    bwd, bwd_fixed, _ = positions_on_epochs(read_pos(tmp_path / "l1l2_backward.pos"), t)
+    agree = true_fixed & bwd_fixed & (np.linalg.norm(true_pos - bwd, axis=1) < 0.01)
+    assert agree.sum() >= 200, agree.sum()
+    consensus = 0.5 * (true_pos + bwd)
+    mine_off, theirs_off = (np.linalg.norm(x - consensus, axis=1) for x in (mine, theirs))
+    assert np.all(mine_fixed[agree]) and np.all(mine_off[agree] <= 0.05), np.sort(mine_off[agree])[-5:]
+    assert np.sum(theirs_off[agree & theirs_fixed] > 0.05) >= 1
+    # where demo5's L1 fix lies within 2 cm of that truth, ours and demo5's agree within the issue's medians
+    # (measured 0.4-1.0 mm H, 0.5-2.9 mm V): the plain medians against demo5's L1 (up to 5.0 / 18.1 mm)
+    # come from demo5's other L1 fixes, 2 cm to decimetres off the truth
+    right = agree & theirs_fixed & (theirs_off < 0.02)
+    assert right.sum() >= 40, right.sum()
+    lat, lon, _ = ecef_to_geodetic(consensus[right][:1])[0]
+    d_enu = (mine[right] - theirs[right]) @ ecef_to_enu_rotation(lat, lon).T
+    assert np.median(np.hypot(d_enu[:, 0], d_enu[:, 1])) <= 0.003 and np.median(np.abs(d_enu[:, 2])) <= 0.008
+    # the epoch the judge leaves undecided (301 in three of the runs, 5.0-9.1 cm apart) is demo5's wrong fix
+    # by that truth (6.6-10.5 cm off it, ours 1.7 cm)
+    undecided = mine_fixed & theirs_fixed & (np.linalg.norm(mine - theirs, axis=1) > 0.05) & \
+        ~np.isin(t, j.refuted_ref_time_s)
+    assert undecided.sum() == j.n_unjudged
+    for e in np.nonzero(undecided)[0]:
+        assert agree[e] and mine_off[e] < 0.05 < theirs_off[e], (e, mine_off[e], theirs_off[e])
 
 
 @pytest.mark.parametrize("case", UBLOX, ids=_ids(UBLOX))
