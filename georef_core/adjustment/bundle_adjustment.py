@@ -7,6 +7,10 @@ Unknowns, all in the local ENU frame of the project (metres, radians, seconds):
 * the shared intrinsics (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2, or the fisheye's f, cx, cy,
   k1..k4; which are free is a choice);
 * the lever arm ``L`` (camera frame) and the trigger delay ``dt``;
+* for a rolling-shutter camera, the readout time ``tau`` (first to last image row): row ``v`` of image i
+  is exposed at ``(v / H - 0.5) tau`` from the trigger (the middle row's time), when the camera has moved
+  by ``V_i (v / H - 0.5) tau`` (``V_i`` its velocity, from the GNSS at the trigger; the rotation during
+  the readout is neglected);
 * the tie points and the control points ``X_p``.
 
 Observations, each group with its own a-priori sigma and a variance component estimated from its
@@ -71,6 +75,19 @@ class BundleProblem:
     lever_arm_prior_cam_m: np.ndarray | None = None
     lever_arm_prior_sigma_m: np.ndarray | None = None
     fisheye: bool = False             # projection of ``intrinsics`` (see camera_model)
+    # rolling shutter (module docstring): the cameras' velocities (N, 3), the image height and the readout
+    # time; None / 0: a global shutter (every row exposed at the trigger)
+    camera_velocity_enu_m_s: np.ndarray | None = None
+    image_height_px: float = 0.0
+    readout_s: float = 0.0
+
+    @property
+    def rolling_shutter(self) -> bool:
+        return self.camera_velocity_enu_m_s is not None and self.image_height_px > 0
+
+    def row_offset_s_per_readout(self) -> np.ndarray:
+        """(M,) time of each image measurement's row from the trigger, in units of the readout time."""
+        return self.obs_uv_px[:, 1] / self.image_height_px - 0.5
 
 
 @dataclass
@@ -78,6 +95,7 @@ class BundleOptions:
     free_intrinsics: np.ndarray = field(default_factory=lambda: np.ones(8, bool))
     estimate_lever_arm: bool = True
     estimate_delay: bool = True
+    estimate_readout: bool = False   # rolling shutter: estimate the readout time (needs camera velocities)
     max_iterations: int = 40
     huber_k: float = 2.5          # in units of the normalised residual
     outlier_k: float = 4.0        # flagged beyond this many sigma (after convergence)
@@ -131,6 +149,10 @@ class _Layout:
         self.delay_col = len(names)
         if self.delay:
             names += ["delay"]
+        self.readout = opt.estimate_readout and prob.rolling_shutter
+        self.readout_col = len(names)
+        if self.readout:
+            names += ["readout"]
         self.names = names
         self.n_global = len(names)
         self.n_cam = len(prob.centre_enu_m)
@@ -139,13 +161,21 @@ class _Layout:
         self.n_pts = len(prob.points_enu_m)
 
 
-def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None):
+def _row_shift(prob: BundleProblem, readout_s: float) -> np.ndarray | float:
+    """(M, 3) displacement of each measurement's camera centre at its row's exposure (rolling shutter), or 0."""
+    if not prob.rolling_shutter:
+        return 0.0
+    return prob.camera_velocity_enu_m_s[prob.obs_camera] * (readout_s * prob.row_offset_s_per_readout())[:, None]
+
+
+def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None, readout=None):
     R = prob.R_cam_to_enu if R is None else R
     C = prob.centre_enu_m if C is None else C
     X = prob.points_enu_m if X is None else X
     intr = prob.intrinsics if intr is None else intr
+    readout = prob.readout_s if readout is None else readout
     Rw2c = np.transpose(R[prob.obs_camera], (0, 2, 1))
-    d = X[prob.obs_point] - C[prob.obs_camera]
+    d = X[prob.obs_point] - C[prob.obs_camera] - _row_shift(prob, readout)
     p = np.einsum("mij,mj->mi", Rw2c, d)
     return project_camera_points(p, intr, prob.fisheye), p, d, Rw2c
 
@@ -221,9 +251,9 @@ class BundleAdjuster:
     # ----------------------------------------------------------------------------------- residuals
     def _normalised(self, state=None):
         p = self.prob
-        R, C, X, intr, lever, delay = state if state is not None else (
-            p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s)
-        uv, *_ = _reprojection(p, intr, R, C, X)
+        R, C, X, intr, lever, delay, readout = state if state is not None else (
+            p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s)
+        uv, *_ = _reprojection(p, intr, R, C, X, readout)
         r_obs = (uv - p.obs_uv_px) / (p.obs_sigma_px * np.sqrt(self.var["image"]))[:, None]
         Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
         g, _ = _gnss_residual(p, R, C, lever, delay)
@@ -277,14 +307,18 @@ class BundleAdjuster:
         JX *= sw[:, None, None]
         Jrot *= sw[:, None, None]
         Ji *= sw[:, None, None]
+        if lay.readout:  # d(uv)/d(readout) = -d(uv)/dX . V_i (v / H - 0.5)
+            Ji = np.concatenate([Ji, -np.einsum("mij,mj->mi", JX, p.camera_velocity_enu_m_s[p.obs_camera]
+                                                * p.row_offset_s_per_readout()[:, None])[:, :, None]], axis=2)
         rows_r = (np.sqrt(self.w_obs)[:, None] * r_obs).reshape(-1)
 
         # sparse assembly of the x-part (global + cameras) and the point blocks
         rows, cols, vals = [], [], []
         obs_rows = np.arange(M)[:, None] * 2 + np.arange(2)[None, :]  # (M, 2)
-        if lay.n_intr:
-            rows.append(np.repeat(obs_rows[:, :, None], lay.n_intr, 2).reshape(-1))
-            cols.append(np.broadcast_to(np.arange(lay.n_intr), (M, 2, lay.n_intr)).reshape(-1))
+        if Ji.shape[2]:  # the intrinsics' columns, and the readout's
+            icols = np.concatenate([np.arange(lay.n_intr), [lay.readout_col] if lay.readout else []]).astype(int)
+            rows.append(np.repeat(obs_rows[:, :, None], len(icols), 2).reshape(-1))
+            cols.append(np.broadcast_to(icols, (M, 2, len(icols))).reshape(-1))
             vals.append(Ji.reshape(-1))
         cam_cols = lay.cam0 + 6 * p.obs_camera
         rows.append(np.repeat(obs_rows[:, :, None], 6, 2).reshape(-1))
@@ -378,15 +412,16 @@ class BundleAdjuster:
         if lay.lever:
             lever += dx[lay.lever_col:lay.lever_col + 3]
         delay = p.delay_s + (dx[lay.delay_col] if lay.delay else 0.0)
+        readout = p.readout_s + (dx[lay.readout_col] if lay.readout else 0.0)
         cam = dx[lay.cam0:].reshape(-1, 6)
         R = Rotation.from_rotvec(cam[:, :3]).as_matrix() @ p.R_cam_to_enu
         C = p.centre_enu_m + cam[:, 3:]
         X = p.points_enu_m + dp.reshape(-1, 3)
-        return R, C, X, intr, lever, float(delay)
+        return R, C, X, intr, lever, float(delay), float(readout)
 
     def _commit(self, state):
         p = self.prob
-        p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s = state
+        p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s = state
 
     def _reweight(self):
         r_obs, r_g, r_c = self._normalised()
@@ -503,7 +538,8 @@ class BundleAdjuster:
         rms = float(np.sqrt(np.mean(np.sum(res_px[ok] ** 2, 1)))) if ok.any() else float("nan")
         g_vals = np.concatenate([p.intrinsics[lay.intr_idx],
                                  p.lever_arm_cam_m if lay.lever else [],
-                                 [p.delay_s] if lay.delay else []])
+                                 [p.delay_s] if lay.delay else [],
+                                 [p.readout_s] if lay.readout else []])
         G = lay.n_global
         cam_cov = np.stack([Sinv[lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6, lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6]
                             for i in range(lay.n_cam)])
@@ -525,6 +561,7 @@ def adjust(problem: BundleProblem, options: BundleOptions | None = None) -> Bund
     at once lets Levenberg-Marquardt crawl along that valley instead of closing the misfit."""
     opt = options or BundleOptions()
     if opt.initial_variances is None and np.any(opt.free_intrinsics):
-        first = replace(opt, free_intrinsics=np.zeros(8, bool), variance_components=False, max_iterations=30)
+        first = replace(opt, free_intrinsics=np.zeros(8, bool), estimate_readout=False, variance_components=False,
+                        max_iterations=30)
         BundleAdjuster(problem, first)._iterate(first.max_iterations)
     return BundleAdjuster(problem, opt).run()

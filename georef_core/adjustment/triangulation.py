@@ -19,23 +19,25 @@ class Triangulated:
     max_angle_deg: float         # widest intersection angle
 
 
-def _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr, fisheye=False):
+def _ray_directions(uv_px, cam_idx, R_cam_to_enu, intr, fisheye=False):
     xy = undistort_pixels(np.asarray(uv_px, float), intr, fisheye=fisheye)
     d_cam = np.column_stack([xy, np.ones(len(xy))])
     d = np.einsum("nij,nj->ni", R_cam_to_enu[cam_idx], d_cam)
-    return centres[cam_idx], d / np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1.0, iterations: int = 5,
-                fisheye: bool = False) -> Triangulated:
+                fisheye: bool = False, centre_shift_enu_m=None) -> Triangulated:
     """Least-squares intersection of the rays (midpoint), refined by Gauss-Newton on the reprojection.
-    ``intr`` and ``fisheye``: the camera (see camera_model)."""
+    ``intr`` and ``fisheye``: the camera (see camera_model). ``centre_shift_enu_m`` (n, 3): where each
+    measurement's camera was at the exposure of its row, from ``centres`` (a rolling shutter; None: 0)."""
     uv_px = np.asarray(uv_px, float)
     cam_idx = np.asarray(cam_idx, int)
-    o, d = _rays(uv_px, cam_idx, R_cam_to_enu, centres, intr, fisheye)
+    origins = centres[cam_idx] + (0.0 if centre_shift_enu_m is None else np.asarray(centre_shift_enu_m, float))
+    d = _ray_directions(uv_px, cam_idx, R_cam_to_enu, intr, fisheye)
     A = np.zeros((3, 3))
     b = np.zeros(3)
-    for oi, di in zip(o, d):
+    for oi, di in zip(origins, d):
         P = np.eye(3) - np.outer(di, di)
         A += P
         b += P @ oi
@@ -43,15 +45,15 @@ def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1
     Rw2c = np.transpose(R_cam_to_enu[cam_idx], (0, 2, 1))
     N = np.eye(3)
     for _ in range(iterations):
-        pc = np.einsum("nij,nj->ni", Rw2c, X[None] - centres[cam_idx])
+        pc = np.einsum("nij,nj->ni", Rw2c, X[None] - origins)
         uv = project_camera_points(pc, intr, fisheye)
         J = np.zeros((len(uv_px), 2, 3))
         h = 1e-5
         for k in range(3):
             e = np.zeros(3)
             e[k] = h
-            pp = np.einsum("nij,nj->ni", Rw2c, (X + e)[None] - centres[cam_idx])
-            pm = np.einsum("nij,nj->ni", Rw2c, (X - e)[None] - centres[cam_idx])
+            pp = np.einsum("nij,nj->ni", Rw2c, (X + e)[None] - origins)
+            pm = np.einsum("nij,nj->ni", Rw2c, (X - e)[None] - origins)
             J[:, :, k] = (project_camera_points(pp, intr, fisheye) - project_camera_points(pm, intr, fisheye)) / (2 * h)
         Jm = J.reshape(-1, 3)
         r = (uv - uv_px).reshape(-1)
@@ -60,7 +62,7 @@ def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1
         X = X + dx
         if np.linalg.norm(dx) < 1e-7:
             break
-    pc = np.einsum("nij,nj->ni", Rw2c, X[None] - centres[cam_idx])
+    pc = np.einsum("nij,nj->ni", Rw2c, X[None] - origins)
     res = project_camera_points(pc, intr, fisheye) - uv_px
     cos = np.clip(d @ d.T, -1, 1)
     ang = float(np.degrees(np.arccos(cos.min()))) if len(d) > 1 else 0.0

@@ -41,7 +41,8 @@ def register(sub) -> None:
     p.add_argument("--rerun", action="store_true", help="recompute PPK and SfM even when OUT_DIR has them")
     p.add_argument("--calibration", metavar="CAL_OUT_DIR",
                    help="a calibration flight's output folder: its lever arm (as a prior with its sigma), delay (a "
-                        "priori) and camera intrinsics (held fixed) are used; --lever-arm/--delay override")
+                        "priori), camera intrinsics (held fixed) and rolling-shutter readout time (held fixed) are "
+                        "used; --lever-arm/--delay/--readout-ms override")
     p.add_argument("--exif-time-offset", type=float, metavar="S",
                    help="take trigger times from the images' EXIF time + S seconds (camera clock error negated) "
                         "instead of camera events")
@@ -50,6 +51,9 @@ def register(sub) -> None:
                          help="the camera has a rolling shutter (default: from Georef's table of camera models)")
     shutter.add_argument("--global-shutter", dest="rolling_shutter", action="store_false",
                          help="the camera has a global or mechanical shutter")
+    p.add_argument("--readout-ms", type=float, metavar="MS",
+                   help="rolling-shutter readout time, first to last row (ms), held fixed; implies --rolling-shutter "
+                        "(default: estimated in the adjustment for a rolling-shutter camera)")
     p.set_defaults(func=cmd_georef)
 
 
@@ -74,13 +78,16 @@ def cmd_georef(args) -> int:
         if args.delay is None:
             delay = cal["delay_s"]
         intrinsics = cal["intrinsics"]
+        if args.readout_ms is None and cal["readout_s"] is not None and args.rolling_shutter is not False:
+            args.readout_ms = 1000.0 * cal["readout_s"]
     opts = GeorefOptions(mode=mode, camera_model=camera_model, project_epsg=args.crs, points_crs=args.points_crs,
                          control=args.control, check=args.check, fixed_intrinsics=intrinsics,
                          lever_arm_cam_m=lever, lever_arm_sigma_m=lever_sigma, delay_s=delay or 0.0,
                          estimate_delay=not args.fix_delay,
                          refine_targets=not args.no_target_refinement, leave_one_out=not args.no_leave_one_out,
                          max_tie_points=args.max_tie_points, num_threads=args.threads, reuse=not args.rerun,
-                         exif_time_offset_s=args.exif_time_offset, rolling_shutter=args.rolling_shutter)
+                         exif_time_offset_s=args.exif_time_offset, rolling_shutter=args.rolling_shutter,
+                         readout_s=None if args.readout_ms is None else args.readout_ms / 1000.0)
 
     def progress(stage, done, total):
         if total:
@@ -102,6 +109,10 @@ def cmd_georef(args) -> int:
         f"{v:+.4f}" + (f" ± {e:.4f}" if lsig else "") for v, e in zip(ld["lever_arm_cam_m"], lsig or [0, 0, 0]))
           + ("" if lsig else " (fixed)"))
     print(f"delay: {1000 * ld['delay_s']:.2f} ms" + (f" ± {1000 * ld['delay_sigma_s']:.2f}" if ld["delay_sigma_s"] else " (fixed)"))
+    rs = s.get("rolling_shutter") or {}
+    if rs.get("modelled"):
+        print(f"rolling-shutter readout: {1000 * rs['readout_s']:.2f} ms"
+              + (f" ± {1000 * rs['readout_sigma_s']:.2f}" if rs.get("readout_sigma_s") else " (given)"))
     from ..adjustment.residual_table import ResidualRow, ResidualTable
 
     for key in ("check_points", "control_leave_one_out"):

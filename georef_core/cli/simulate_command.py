@@ -52,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rinex-version", type=int, choices=[2, 3], help="RINEX version of rover/base files (default 3)")
     p.add_argument("--no-gnss", action="store_true", help="no rover/base/nav files")
     p.add_argument("--no-images", action="store_true", help="no images (site, flight, GNSS and truth only)")
+    p.add_argument("--readout-ms", type=float, metavar="MS",
+                   help="a rolling-shutter camera with this readout time, first to last row (ms; default: global "
+                        "shutter); EXIF model SimCam-RS")
     p.add_argument("--workers", type=int, help="images rendered concurrently (default 2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -170,6 +173,10 @@ def options_from_args(args):
         o.camera = CameraOptions.fisheye().scaled(o.camera.width_px, o.camera.height_px)
     if args.image_size is not None:
         o.camera = o.camera.scaled(*args.image_size)
+    if args.readout_ms is not None:
+        if not 0.0 < args.readout_ms <= 200.0:
+            raise GeorefError(f"--readout-ms {args.readout_ms:g}: expected more than 0 and at most 200 ms")
+        o.camera = o.camera.rolling(args.readout_ms / 1000.0)
     if args.workers is not None:
         o.workers = args.workers
     if args.no_images:

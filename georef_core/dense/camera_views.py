@@ -3,6 +3,13 @@ lens distortion (OpenCV coefficients, scale-free), rotation world(ENU)->camera a
 
 Pixel convention: OpenCV, the centre of the top-left pixel is (0, 0). Scaling an image by ``s`` maps a
 pixel ``u`` to ``s (u + 0.5) - 0.5``. Camera axes: x right, y down, z forward (into the scene).
+
+A rolling-shutter image (its camera's readout time and velocity known, oriented_images.py) is read as the
+image a global shutter would have taken from the view's centre: each pixel is taken from where the point
+at the scene's depth appeared in the real image, whose row was exposed from ``centre + velocity t(row)``
+(``global_shutter_maps``). Everything downstream (rectification, fusion, orthophoto) then sees a central
+camera. The depth is one per image (the sparse points' median): relief of a fraction q of the flying
+height leaves q of the correction (a few pixels at most) uncorrected.
 """
 
 from __future__ import annotations
@@ -48,6 +55,15 @@ class CameraView:
     full_width: int
     full_height: int
     fisheye: bool = False  # dist is cv2.fisheye's (k1..k4 on the ray angle) instead of the pinhole model's
+    # rolling shutter: readout (s, first to last row), camera velocity (ENU, m/s) and the scene depth used to
+    # read the image as a global shutter's; all three needed (else the image is read as it is)
+    readout_s: float = 0.0
+    velocity_enu_m_s: np.ndarray | None = None
+    scene_depth_m: float | None = None
+
+    @property
+    def rolling_shutter(self) -> bool:
+        return self.readout_s > 0 and self.velocity_enu_m_s is not None
 
     # --- geometry --------------------------------------------------------------------------------
     @property
@@ -110,8 +126,13 @@ class CameraView:
 
     # --- pixels ----------------------------------------------------------------------------------
     def read_image(self, gray: bool = False) -> np.ndarray:
-        """The image file at this view's scale (BGR uint8, or grey)."""
-        return read_image_at(self.path, self.full_width, self.full_height, self.width, self.height, gray)
+        """The image file at this view's scale (BGR uint8, or grey); a rolling-shutter image as a global
+        shutter's (module docstring) once ``scene_depth_m`` is known."""
+        img = read_image_at(self.path, self.full_width, self.full_height, self.width, self.height, gray)
+        if self.rolling_shutter and self.scene_depth_m:
+            mx, my = global_shutter_maps(self)
+            img = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return img
 
     def undistort_points(self, uv: np.ndarray) -> np.ndarray:
         """Pixels of the real (distorted) image (N, 2) -> undistorted normalised coordinates x/z, y/z (N, 2)."""
@@ -132,6 +153,32 @@ class CameraView:
         its own K, size and, when given, the rotation R_rect from this camera's axes to ``pinhole``'s)."""
         R = np.eye(3) if R_rect is None else R_rect
         return self.rectify_maps(R, pinhole.K, (pinhole.width, pinhole.height))
+
+
+def global_shutter_maps(view: CameraView) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap maps (float32, at the view's scale) from a rolling-shutter image to the image a global
+    shutter would have taken from ``view.centre_enu_m`` (the middle row's camera centre), for a scene at
+    camera depth ``view.scene_depth_m``. A point at depth Z seen at pixel (u, v) from the centre was seen
+    from the centre + a (a = velocity t, t the time of its row in the real image, camera axes) at
+    (u, v) + f (-a_xy + (x, y) a_z) / Z to first order; the row is found in two steps."""
+    w, h = view.width, view.height
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    fx, fy, cx, cy = (np.float32(view.K[0, 0]), np.float32(view.K[1, 1]), np.float32(view.K[0, 2]),
+                      np.float32(view.K[1, 2]))
+    x, y = (u - cx) / fx, (v - cy) / fy
+    vel_cam = (view.R_world_to_cam @ np.asarray(view.velocity_enu_m_s, float)).astype(np.float32)
+    rows_scale = np.float32(view.full_height / view.height)
+    z = np.float32(view.scene_depth_m)
+
+    def shift(row):
+        full_row = (row + np.float32(0.5)) * rows_scale - np.float32(0.5)
+        t = np.float32(view.readout_s) * (full_row / np.float32(view.full_height) - np.float32(0.5))
+        ax, ay, az = vel_cam[0] * t, vel_cam[1] * t, vel_cam[2] * t
+        return fx * (x * az - ax) / z, fy * (y * az - ay) / z
+
+    _, dv = shift(v)
+    du, dv = shift(v + dv)
+    return u + du, v + dv
 
 
 def apply_distortion(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -185,7 +232,8 @@ def views_from_oriented(oriented: OrientedImages, max_image_size: int | None, so
             raise InputFileError(source or oriented.image_dir, f"image {im.name}: R_cam_to_enu is not a rotation")
         v = CameraView(im.name, oriented.image_path(im), cam.width, cam.height, cam.K(),
                        opencv_distortion_coeffs(cam), R, np.asarray(im.centre_enu_m, float),
-                       cam.width, cam.height, fisheye=cam.model in FISHEYE_MODELS)
+                       cam.width, cam.height, fisheye=cam.model in FISHEYE_MODELS, readout_s=float(cam.readout_s),
+                       velocity_enu_m_s=im.velocity_enu_m_s)
         s = 1.0 if not max_image_size else min(1.0, max_image_size / max(cam.width, cam.height))
         views.append(v.scaled(s) if s < 1.0 else v)
     return views

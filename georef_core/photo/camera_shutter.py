@@ -2,8 +2,9 @@
 
 A rolling shutter exposes the rows one after the other (readout 20-60 ms on the small-sensor drone
 cameras); at 5-10 m/s the image is skewed by several centimetres along track, which the global-shutter
-camera model of the adjustment cannot absorb. Georef flags such cameras (a warning and a field in the
-summary) so the residuals are read with that in mind; it does not model the readout yet.
+camera model cannot absorb. For such cameras the adjustment models the readout (each image row seen from
+where the camera was at its exposure, the readout time estimated or given; adjustment/bundle_adjustment.py)
+where it adjusts the images with GNSS velocities, and warns where it cannot.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ KNOWN_CAMERAS: dict[str, tuple[bool, str]] = {
     "ZENMUSEP1": (False, "DJI Zenmuse P1 (global/mechanical shutter)"),
     "FC6520": (True, "DJI Zenmuse X5S"),
     "FC6540": (True, "DJI Zenmuse X7"),
+    "SIMCAM-RS": (True, "Georef's simulated rolling-shutter camera (georef simulate --readout-ms)"),
 }
 
 

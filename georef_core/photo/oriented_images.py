@@ -7,9 +7,12 @@
   project CRS (E, N, ellipsoidal h) through the frame's conversions.
 * ``image_dir``: folder of the images (absolute, or relative to the JSON file).
 * ``cameras``: id -> COLMAP camera model name, width, height and parameters (COLMAP conventions:
-  pixel centres at +0.5, the OPENCV model's fx fy cx cy k1 k2 p1 p2, ...).
+  pixel centres at +0.5, the OPENCV model's fx fy cx cy k1 k2 p1 p2, ...), and ``readout_s`` for a
+  rolling-shutter camera whose readout the adjustment modelled.
 * ``images``: name, camera id, ``R_cam_to_enu`` (3x3, camera axes x right / y down / z forward into
-  ENU) and ``centre_enu_m``, with optional ``centre_sigma_enu_m``.
+  ENU) and ``centre_enu_m`` (the camera at the image's time, its middle row's exposure), with optional
+  ``centre_sigma_enu_m`` and ``velocity_enu_m_s`` (rolling shutter: row v was seen from
+  ``centre + velocity (v / height - 0.5) readout_s``).
 * ``sparse_points_file`` (optional): an ``.npz`` with ``xyz_enu_m`` (N, 3) and ``rgb`` (N, 3) uint8.
 """
 
@@ -33,6 +36,8 @@ class OrientedCamera:
     width: int
     height: int
     params: list[float]
+    readout_s: float = 0.0  # rolling shutter: first to last row (s); row v exposed (v / height - 0.5) readout_s
+                            # after the image's time, from centre + velocity * that time; 0: global shutter
 
     def K(self) -> np.ndarray:
         """3x3 calibration matrix in OpenCV pixel convention (centre of the top-left pixel at 0, 0)."""
@@ -68,6 +73,7 @@ class OrientedImage:
     R_cam_to_enu: np.ndarray
     centre_enu_m: np.ndarray
     centre_sigma_enu_m: np.ndarray | None = None
+    velocity_enu_m_s: np.ndarray | None = None  # the camera's velocity (rolling shutter; None: not known)
 
     def projection_matrix(self, camera: OrientedCamera) -> np.ndarray:
         """3x4 P = K [R | t] mapping ENU points to undistorted pixel coordinates (OpenCV convention)."""
@@ -97,13 +103,17 @@ class OrientedImages:
             "project_frame": self.frame.to_dict(),
             "image_dir": str(self.image_dir),
             "cameras": {str(k): {"model": c.model, "width": int(c.width), "height": int(c.height),
-                                 "params": [float(v) for v in c.params]} for k, c in self.cameras.items()},
+                                 "params": [float(v) for v in c.params],
+                                 **({"readout_s": float(c.readout_s)} if c.readout_s else {})}
+                        for k, c in self.cameras.items()},
             "images": [{
                 "name": im.name, "camera_id": int(im.camera_id),
                 "R_cam_to_enu": np.asarray(im.R_cam_to_enu, float).tolist(),
                 "centre_enu_m": [float(v) for v in im.centre_enu_m],
                 **({"centre_sigma_enu_m": [float(v) for v in im.centre_sigma_enu_m]}
                    if im.centre_sigma_enu_m is not None else {}),
+                **({"velocity_enu_m_s": [float(v) for v in im.velocity_enu_m_s]}
+                   if im.velocity_enu_m_s is not None else {}),
             } for im in self.images],
             **self.extra,
         }
@@ -132,14 +142,16 @@ def read_oriented_images(path) -> OrientedImages:
         image_dir = Path(doc["image_dir"])
         if not image_dir.is_absolute():
             image_dir = (path.parent / image_dir).resolve()
-        cameras = {int(k): OrientedCamera(v["model"], int(v["width"]), int(v["height"]), list(map(float, v["params"])))
+        cameras = {int(k): OrientedCamera(v["model"], int(v["width"]), int(v["height"]), list(map(float, v["params"])),
+                                          float(v.get("readout_s", 0.0)))
                    for k, v in doc["cameras"].items()}
         images = []
         for im in doc["images"]:
-            sig = im.get("centre_sigma_enu_m")
+            sig, vel = im.get("centre_sigma_enu_m"), im.get("velocity_enu_m_s")
             images.append(OrientedImage(im["name"], int(im["camera_id"]), np.asarray(im["R_cam_to_enu"], float),
                                         np.asarray(im["centre_enu_m"], float),
-                                        None if sig is None else np.asarray(sig, float)))
+                                        None if sig is None else np.asarray(sig, float),
+                                        None if vel is None else np.asarray(vel, float).reshape(3)))
     except (KeyError, TypeError, ValueError) as exc:
         raise InputFileError(path, f"malformed oriented-images file ({exc!r})") from None
     for im in images:
@@ -164,7 +176,9 @@ def oriented_images_from_simulator_truth(survey_dir) -> OrientedImages:
     intr = json.loads((survey_dir / "truth" / "intrinsics.json").read_text())
     frame = ProjectFrame.from_dict(poses["site_frame"])
     cam = OrientedCamera(intr["colmap_model"], int(intr["width"]), int(intr["height"]),
-                         list(map(float, intr["colmap_params"])))
-    images = [OrientedImage(p["name"], 1, np.asarray(p["R_cam_to_enu"], float), np.asarray(p["camera_centre_enu_m"], float))
+                         list(map(float, intr["colmap_params"])), float(intr.get("readout_s", 0.0)))
+    images = [OrientedImage(p["name"], 1, np.asarray(p["R_cam_to_enu"], float), np.asarray(p["camera_centre_enu_m"], float),
+                            velocity_enu_m_s=None if "camera_velocity_enu_m_s" not in p
+                            else np.asarray(p["camera_velocity_enu_m_s"], float))
               for p in poses["images"]]
     return OrientedImages(frame, survey_dir / "images", {1: cam}, images, extra={"source": "simulator truth"})

@@ -44,6 +44,16 @@ class CameraOptions:
     model: str = "SimCam-GS"
     projection: str = "perspective"  # or "fisheye" (then k1..k4 are the fisheye's, p1 = p2 = 0)
     k4: float = 0.0
+    # rolling shutter: time from the first to the last row (s; 0 = global shutter); row v is exposed at
+    # (v / height - 0.5) * readout_s from the exposure time (the middle row's)
+    readout_s: float = 0.0
+
+    def rolling(self, readout_s: float) -> "CameraOptions":
+        """The same camera with a rolling shutter of this readout time (EXIF model SimCam-RS, which Georef's
+        shutter table knows as rolling)."""
+        from dataclasses import replace
+
+        return replace(self, readout_s=float(readout_s), model="SimCam-RS" if readout_s > 0 else self.model)
 
     @classmethod
     def fisheye(cls) -> "CameraOptions":
@@ -77,6 +87,7 @@ class CameraModel:
     model: str = "SimCam-GS"
     projection: str = "perspective"
     k4: float = 0.0
+    readout_s: float = 0.0           # rolling shutter (CameraOptions.readout_s); 0: global shutter
 
     def __post_init__(self):
         if self.projection not in ("perspective", "fisheye"):
@@ -90,7 +101,7 @@ class CameraModel:
                    cx=(o.width_px - 1) / 2.0 + o.principal_offset[0] * o.width_px,
                    cy=(o.height_px - 1) / 2.0 + o.principal_offset[1] * o.width_px,
                    k1=o.k1, k2=o.k2, k3=o.k3, p1=o.p1, p2=o.p2, pixel_size_mm=pix, make=o.make, model=o.model,
-                   projection=o.projection, k4=o.k4)
+                   projection=o.projection, k4=o.k4, readout_s=o.readout_s)
 
     @property
     def fisheye(self) -> bool:
@@ -213,6 +224,26 @@ class CameraModel:
         """World points (N, 3) seen from a camera at ``centre_world`` with attitude ``R_cam_to_world``."""
         pc = (np.asarray(points_world, dtype=float) - np.asarray(centre_world, dtype=float)) @ np.asarray(R_cam_to_world)
         return self.project(pc)
+
+    def row_time_s(self, v) -> np.ndarray:
+        """Exposure time of image row(s) ``v`` (OpenCV pixel rows) from the image's exposure time, which is the
+        middle row's: 0 for a global shutter."""
+        return self.readout_s * (np.asarray(v, dtype=float) / self.height - 0.5)
+
+    def project_world_moving(self, points_world, centre_world, R_cam_to_world, velocity_world) -> np.ndarray:
+        """project_world for a camera moving at ``velocity_world`` (m/s) through a rolling-shutter readout: each
+        point is seen from where the camera was when the point's row was exposed (a fixed point in the row,
+        converged in a few steps: the row moves by a small fraction of the image while the camera moves).
+        The rotation during the readout is neglected."""
+        pts = np.asarray(points_world, dtype=float)
+        uv = self.project_world(pts, centre_world, R_cam_to_world)
+        if self.readout_s <= 0:
+            return uv
+        for _ in range(4):
+            t = self.row_time_s(np.nan_to_num(uv[:, 1], nan=0.5 * self.height))
+            uv = self.project((pts - np.asarray(centre_world, float) - t[:, None] * np.asarray(velocity_world, float))
+                              @ np.asarray(R_cam_to_world))
+        return uv
 
     def pixel_to_ray(self, u, v) -> np.ndarray:
         """Unit camera-frame directions through pixel positions (distortion removed)."""

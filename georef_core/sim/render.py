@@ -140,8 +140,11 @@ class Renderer:
         self._noise = (bank_rng.standard_normal(n + 65536, dtype=np.float32) * np.float32(self.options.noise_dn))
 
     def render(self, R_cam_to_enu: np.ndarray, centre_enu: np.ndarray, rng: np.random.Generator | None = None,
-               band_rows: int = 160) -> np.ndarray:
+               band_rows: int = 160, velocity_enu_m_s=None) -> np.ndarray:
         """uint8 RGB image (height, width, 3) of the site seen from a camera pose (local ENU).
+
+        ``velocity_enu_m_s``: the camera's velocity, for a rolling-shutter camera (``camera.readout_s`` > 0):
+        each row is seen from where the camera was at that row's exposure (``camera.row_time_s``).
 
         ``rng`` draws the exposure gain jitter and the sensor-noise offset; None: no noise. The image is
         processed in bands of rows (smaller temporaries: less memory traffic, no page-fault storms)."""
@@ -150,6 +153,8 @@ class Renderer:
         W, H = cam.width, cam.height
         R = np.asarray(R_cam_to_enu, dtype=np.float64)
         c32 = np.asarray(centre_enu, dtype=np.float32)
+        rolling = cam.readout_s > 0 and velocity_enu_m_s is not None
+        vel = np.asarray(velocity_enu_m_s, dtype=np.float64) if rolling else None
         gain = 1.0
         off = -1  # no sensor noise
         if rng is not None and o.gain_jitter > 0:
@@ -169,7 +174,11 @@ class Renderer:
             sl = slice(r0 * W, r1 * W)
             n = (r1 - r0) * W
             rays = np.empty((n, 6), dtype=np.float32)
-            rays[:, :3] = c32
+            if rolling:  # one camera centre per row
+                t_row = cam.row_time_s(np.arange(r0, r1))
+                rays[:, :3] = np.repeat((c32[None] + t_row[:, None] * vel).astype(np.float32), W, axis=0)
+            else:
+                rays[:, :3] = c32
             tmp = np.empty(n, dtype=np.float32)
             for k in range(3):  # world direction = R @ camera direction, column by column (no BLAS)
                 col = rays[:, 3 + k]

@@ -251,12 +251,12 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 g = frame.enu_to_grid(c + exif_rng.standard_normal(3) * sig)
                 lat, lon = frame.grid_to_latlon_rad(g[0], g[1])
                 gps = (math.degrees(float(lat)), math.degrees(float(lon)), float(g[2]))
-            jobs.append((e, R, c, exif_bytes(camera, gps_time_to_utc(te), gps)))
+            jobs.append((e, R, c, traj.velocity_enu(te), exif_bytes(camera, gps_time_to_utc(te), gps)))
 
         def job(item) -> Path:
-            e, R, c, exb = item
+            e, R, c, vel, exb = item
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), 505, e.index]))
-            img = renderer.render(R, c, rng)
+            img = renderer.render(R, c, rng, velocity_enu_m_s=vel)
             path = img_dir / e.name
             write_jpeg(path, img, exb, o.render.jpeg_quality)
             return path

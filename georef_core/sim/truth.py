@@ -95,7 +95,7 @@ def camera_poses(trajectory: Trajectory, events: list[CameraEvent], lever_arm_ca
             "trigger_gps_week": week, "trigger_tow_s": tow,
             "exposure_utc": utc.isoformat(timespec="microseconds") + "Z",
             "camera_centre_ecef_m": c_ecef, "camera_centre_enu_m": c_enu,
-            "camera_centre_crs_m": c_grid,
+            "camera_centre_crs_m": c_grid, "camera_velocity_enu_m_s": trajectory.velocity_enu(te),
             "R_cam_to_ecef": R_ecef, "R_cam_to_enu": R, "R_cam_to_crs_grid": R_grid,
             "yaw_pitch_roll_deg": trajectory.yaw_pitch_roll_deg(te),
             "antenna_ecef_at_trigger_m": p_trig, "antenna_velocity_ecef_at_trigger_m_s": v_trig,
@@ -260,7 +260,7 @@ def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: lis
                                  lever_arm_cam_m, noise_px: float = 0.3, seed: int = 0, border_px: float = 8.0) -> int:
     """``gcp/gcp_list.txt``: where a surveyor would have clicked each target in each image, in OpenDroneMap's
     format (first line the CRS, then ``E N h x y image name``; pixel (0, 0) is the centre of the top-left
-    pixel). Positions are the true projections plus ``noise_px`` (sigma per axis) of clicking noise;
+    pixel). Positions are the true projections (through a rolling shutter where the camera has one) plus ``noise_px`` (sigma per axis) of clicking noise;
     targets closer than ``border_px`` to the image edge are left out. Returns the number of lines."""
     f = site.frame
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 808]))
@@ -274,7 +274,7 @@ def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: lis
         te = e.exposure_gps_time_s
         R = trajectory.R_cam_to_enu(te)
         c = trajectory.position_enu(te) + R @ lever
-        px = camera.project_world(t_enu, c, R)
+        px = camera.project_world_moving(t_enu, c, R, trajectory.velocity_enu(te))
         for t, uv in zip(targets, px):
             if not np.all(np.isfinite(uv)):
                 continue

@@ -13,7 +13,7 @@ import threading
 import time
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +90,16 @@ def _nice(x: float) -> float:
     """Round a resolution to 5 mm (1 mm below 2 cm)."""
     step = 0.005 if x >= 0.02 else 0.001
     return max(step, round(x / step) * step)
+
+
+def _rolling_summary(views) -> dict | None:
+    """How many rolling-shutter images were read as a global shutter's, and their readout; None if none."""
+    rs = [v for v in views if v.rolling_shutter and v.scene_depth_m]
+    if not rs:
+        return None
+    return {"corrected_images": len(rs), "readout_s": sorted({round(v.readout_s, 6) for v in rs}),
+            "method": "each image resampled to a global shutter's from its middle row's camera centre, at its "
+                      "median scene depth (docs/dense.md)"}
 
 
 def _median_stack(maps: list[np.ndarray]) -> np.ndarray:
@@ -177,6 +187,9 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     report("sparse prior", 0, 1)
     with timer.stage("sparse_prior"):
         prior = build_sparse_prior(views, oriented.sparse_xyz_enu_m)
+        # rolling-shutter images are read as a global shutter's, at each image's median scene depth
+        views = [replace(v, scene_depth_m=prior.views[k].depth_med_m) if v.rolling_shutter else v
+                 for k, v in enumerate(views)]
     report("sparse prior", 1, 1)
 
     with timer.stage("pair_selection"):
@@ -363,6 +376,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         "matching_gsd_m": round(wgsd, 4),
         "dsm_resolution_m": res,
         "sparse_prior": {"source": prior.source, "points": int(len(prior.xyz_enu_m))},
+        "rolling_shutter": _rolling_summary(views),
         "pairs": {"count": n_pairs, "rectified": int(sum(1 for p in pair_info if p.get("rectified"))),
                   "mean_valid_disparity_fraction": round(float(np.mean(valid_fracs)), 4) if valid_fracs else None,
                   "images_without_partner": [views[i].name for i in range(n_img) if not sources[i]]},

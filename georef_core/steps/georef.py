@@ -69,9 +69,21 @@ class GeorefOptions:
     # local with its OffsetTimeOriginal) + this offset (s), i.e. the camera clock's error negated
     exif_time_offset_s: float | None = None
     rolling_shutter: bool | None = None       # the camera has a rolling shutter (None: from the EXIF model)
+    readout_s: float | None = None            # its readout time, first to last row (None: estimated)
     # a calibrated camera (e.g. from a calibration flight, see load_calibration): the 8 OpenCV intrinsics
     # (f, cx, cy, k1, k2, k3, p1, p2, pixels) held fixed instead of self-calibrated
     fixed_intrinsics: tuple[float, ...] | None = None
+
+
+def validate_shutter_options(opts: GeorefOptions) -> None:
+    """A readout time is a rolling shutter's: between 0 and 0.2 s, and not with a global shutter."""
+    if opts.readout_s is None:
+        return
+    if not 0.0 < opts.readout_s <= 0.2:
+        raise ProcessingError(f"rolling-shutter readout time {1000 * opts.readout_s:g} ms: expected more than 0 and at "
+                              f"most 200 ms (small drone cameras read out in 20-60 ms)")
+    if opts.rolling_shutter is False:
+        raise ProcessingError("a readout time was given for a camera declared global-shutter")
 
 
 def georef_options_from_dict(d: dict) -> GeorefOptions:
@@ -87,6 +99,7 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
         if d.get(key) is not None:
             d[key] = tuple(float(v) for v in d[key])
     opts = GeorefOptions(**d)
+    validate_shutter_options(opts)
     opts.mode = MODE_ALIASES.get(opts.mode, opts.mode)
     if opts.mode not in MODES:
         raise ProcessingError(f"georeferencing mode {d.get('mode')!r}: one of {', '.join(MODES)}")
@@ -94,8 +107,9 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
 
 
 def load_calibration(path) -> dict:
-    """Lever arm (with its sigma), delay and camera intrinsics of an earlier run (its OUT_DIR or its
-    georef_summary.json): what a calibration flight hands to the production flights."""
+    """Lever arm (with its sigma), delay, camera intrinsics and, for a rolling-shutter camera whose readout
+    the run modelled, the readout time of an earlier run (its OUT_DIR or its georef_summary.json): what a
+    calibration flight hands to the production flights."""
     p = Path(path)
     summary_path = p / "georef_summary.json" if p.is_dir() else p
     try:
@@ -105,10 +119,12 @@ def load_calibration(path) -> dict:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise InputFileError(summary_path, f"not a georeferencing summary with a lever arm and intrinsics ({exc})") from None
     sig = lad.get("lever_arm_sigma_m")
+    shutter = s.get("rolling_shutter") or {}
+    readout = shutter.get("readout_s") if shutter.get("modelled") else None
     return {"lever_arm_cam_m": tuple(float(v) for v in lad["lever_arm_cam_m"]),
             "lever_arm_sigma_m": float(max(max(sig), 0.002)) if sig else None,
             "delay_s": float(lad["delay_s"]), "intrinsics": tuple(intr), "camera_model": s.get("camera_model", "brown"),
-            "source": str(summary_path)}
+            "readout_s": None if readout is None else float(readout), "source": str(summary_path)}
 
 
 def _image_names(image_dir: Path) -> list[str]:
@@ -120,20 +136,36 @@ def _image_names(image_dir: Path) -> list[str]:
     return names
 
 
-def _shutter_flag(first_image: Path, option: bool | None, warnings: list) -> dict:
+def _shutter_flag(first_image: Path, option: bool | None, readout_s: float | None) -> dict:
     from ..photo.camera_shutter import rolling_shutter_of
     from ..photo.images import read_image_info
 
     model = read_image_info(first_image, warn=False).model
     if option is not None:
         rolling, source = option, "given by the user"
+    elif readout_s is not None and readout_s > 0:
+        rolling, source = True, "a readout time given by the user"
     else:
         rolling, source = rolling_shutter_of(model)
-    if rolling:
-        warnings.append(f"{first_image.parent}: the camera ({model or 'unknown model'}: {source}) has a rolling shutter; "
-                        f"its along-track skew (readout time x speed, several cm at survey speeds) is not modelled, "
-                        f"so expect larger residuals; fly slower or use a mechanical/global-shutter camera")
     return {"camera_model": model, "rolling_shutter": rolling, "source": source, "modelled": False}
+
+
+def _shutter_outcome(shutter: dict, adj: "_Adjusted", opts: GeorefOptions, image_dir: Path, warnings: list) -> None:
+    """Record in ``shutter`` whether the adjustment modelled the rolling shutter (and the readout time it
+    used), or warn where a rolling-shutter camera could not be modelled."""
+    if not shutter["rolling_shutter"]:
+        return
+    if adj.camera_velocity_enu_m_s is not None:
+        shutter.update(modelled=True, readout_s=round(adj.readout_s, 6),
+                       readout_sigma_s=None if adj.readout_sigma_s is None else round(adj.readout_sigma_s, 6),
+                       readout_source="given" if opts.readout_s is not None else "estimated")
+        return
+    why = "mode 'similarity' does not adjust the images" if opts.mode == "similarity" else \
+        "it needs the camera velocities from the GNSS at the triggers, and there are none"
+    warnings.append(f"{image_dir}: the camera ({shutter['camera_model'] or 'unknown model'}: {shutter['source']}) "
+                    f"has a rolling shutter, which is not modelled here ({why}): its along-track skew (readout time "
+                    f"x speed, several cm at survey speeds) stays in the residuals; use mode 'joint' with GNSS, fly "
+                    f"slower or use a mechanical/global-shutter camera")
 
 
 # ------------------------------------------------------------------------------------------- GNSS at images
@@ -314,6 +346,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     from .gnss_solve import read_survey_json, run_survey_gnss
 
     opts = georef_options_from_dict(options) if isinstance(options, dict) else (options or GeorefOptions())
+    validate_shutter_options(opts)
     if opts.mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}")
     survey_dir, out = Path(survey_dir), Path(out_dir)
@@ -323,7 +356,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     report = progress or (lambda *a: None)
     meta = read_survey_json(survey_dir)
     image_names = _image_names(survey_dir / "images")
-    shutter = _shutter_flag(survey_dir / "images" / image_names[0], opts.rolling_shutter, warnings)
+    shutter = _shutter_flag(survey_dir / "images" / image_names[0], opts.rolling_shutter, opts.readout_s)
 
     # ---- control points
     gcp_dir = survey_dir / "gcp"
@@ -423,7 +456,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
 
     t0 = time.perf_counter()
     report("adjustment", 0, 1)
-    result = _adjust(opts, frame, rec, control, gnss_enu, warnings)
+    result = _adjust(opts, frame, rec, control, gnss_enu, warnings, rolling=bool(shutter["rolling_shutter"]))
+    _shutter_outcome(shutter, result, opts, survey_dir / "images", warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
 
@@ -458,8 +492,21 @@ class _Adjusted:
     blunders: list[dict]
     used_measurements: dict          # point -> list of (image, uv)
     stats: dict
-    rerun: object = None             # callable(control_names) -> (names, R, C, intr) for leave-one-out
+    rerun: object = None             # callable(control_names) -> (R, C, intr, readout_s) for leave-one-out
     fisheye: bool = False            # projection of ``intrinsics`` (camera_model)
+    # rolling shutter, where modelled: each camera's velocity (at its trigger), the image height, the readout
+    camera_velocity_enu_m_s: np.ndarray | None = None
+    image_height_px: float = 0.0
+    readout_s: float = 0.0
+    readout_sigma_s: float | None = None
+
+    def centre_shift_enu_m(self, cam_idx: np.ndarray, uv_px: np.ndarray, readout_s: float | None = None):
+        """(n, 3) where each measurement's camera was at its row's exposure, from the camera centre; None
+        for a global shutter (bundle_adjustment's rolling-shutter model)."""
+        if self.camera_velocity_enu_m_s is None:
+            return None
+        readout = self.readout_s if readout_s is None else readout_s
+        return self.camera_velocity_enu_m_s[cam_idx] * (readout * (uv_px[:, 1] / self.image_height_px - 0.5))[:, None]
 
 
 def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr,
@@ -520,7 +567,8 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
     return np.sort(order[np.argsort(key, kind="stable")[:max_points]])
 
 
-def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list) -> _Adjusted:
+def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list,
+            rolling: bool = False) -> _Adjusted:
     cam = next(iter(rec.cameras.values()))
     fisheye = cm.is_fisheye(opts.camera_model)
     if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
@@ -542,6 +590,14 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     lever0 = np.asarray(opts.lever_arm_cam_m, float) if opts.lever_arm_cam_m is not None else np.zeros(3)
     ctl_points = list(control.points.values())
     control_enu = dict(zip([p.name for p in ctl_points], points_to_enu(ctl_points, frame))) if ctl_points else {}
+
+    # rolling shutter: modelled where the images are adjusted and the GNSS gives each camera's velocity
+    # (images without GNSS keep a zero velocity: their rows are taken as exposed at once)
+    cam_vel = None
+    if rolling and gnss_enu and opts.mode in ("joint", "gcp"):
+        cam_vel = np.array([gnss_enu[n][1] if n in gnss_enu else np.zeros(3) for n in names], float)
+    estimate_readout = cam_vel is not None and opts.readout_s is None
+    readout0 = float(opts.readout_s) if opts.readout_s is not None else 0.0
 
     sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr_sfm, fisheye)
     R0 = np.array([sim.R @ im.R_cam_from_world.T for im in images])
@@ -577,9 +633,10 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
 
     def build(control_names: set[str], use_gnss: bool, start=None) -> tuple[BundleProblem, list[str], list[str]]:
         """Problem with the tie points, the GCPs measured in >= 2 images (control ones with priors);
-        ``start`` = (R, C, tie points, intrinsics, lever arm, delay) warm-starts it."""
+        ``start`` = (R, C, tie points, intrinsics, lever arm, delay, readout) warm-starts it."""
         n_tie = len(tie_xyz)
-        Rs, Cs, Ps, Is, Ls, Ds = start if start is not None else (R0, C0, tie_xyz, intr0, lever0, float(opts.delay_s))
+        Rs, Cs, Ps, Is, Ls, Ds, Ts = start if start is not None else (R0, C0, tie_xyz, intr0, lever0,
+                                                                       float(opts.delay_s), readout0)
         gcp_names = [n for n in used if len(used[n]) >= 2 and n in control_names]
         g_xyz, g_cam, g_pt, g_uv = [], [], [], []
         for k, n in enumerate(gcp_names):
@@ -607,7 +664,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                              control_point=np.arange(n_tie, n_tie + len(gcp_names), dtype=int),
                              control_enu_m=np.array([control_enu[n] for n in gcp_names]).reshape(-1, 3),
                              control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]),
-                             fisheye=fisheye)
+                             fisheye=fisheye, camera_velocity_enu_m_s=cam_vel,
+                             image_height_px=float(cam.height) if cam_vel is not None else 0.0, readout_s=float(Ts))
         if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
             prob.lever_arm_prior_cam_m = lever0.copy()
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
@@ -625,7 +683,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
 
     def run_ba(control_set, use_gnss, with_lever, with_delay, start=None, variances=None):
         prob, gn, gcps = build(control_set, use_gnss, start)
-        bo = BundleOptions(free_intrinsics=free, estimate_lever_arm=with_lever, estimate_delay=with_delay)
+        bo = BundleOptions(free_intrinsics=free, estimate_lever_arm=with_lever, estimate_delay=with_delay,
+                           estimate_readout=estimate_readout)
         if variances is not None:  # a warm re-run keeps the variance factors of the full adjustment
             bo.variance_components = False
             bo.initial_variances = dict(variances)
@@ -715,7 +774,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     def rerun(control_set: set[str]):
         fp, s0 = final
         start = (fp.R_cam_to_enu, fp.centre_enu_m, fp.points_enu_m[:len(tie_xyz)], fp.intrinsics, fp.lever_arm_cam_m,
-                 fp.delay_s)
+                 fp.delay_s, fp.readout_s)
         var = {k: v ** 2 for k, v in s0.items()}
         if opts.mode == "joint":
             r, _, _ = run_ba(control_set, True, est_lever and bool(gnss_enu), opts.estimate_delay and bool(gnss_enu),
@@ -726,13 +785,17 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                 return None
         else:
             return None
-        return r.problem.R_cam_to_enu, r.problem.centre_enu_m, r.problem.intrinsics
+        return r.problem.R_cam_to_enu, r.problem.centre_enu_m, r.problem.intrinsics, r.problem.readout_s
 
+    readout, readout_sigma = (final[0].readout_s, None) if final is not None else (readout0, None)
+    if final is not None and "readout" in res.global_names:
+        readout_sigma = res.value("readout")[1]
     return _Adjusted(names=names, R_cam_to_enu=R, centre_enu_m=C, centre_cov_enu_m2=ccov, intrinsics=intr,
                      intrinsics_sigma=isig, lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
                      delay_s=float(delay), delay_sigma_s=delay_sigma, correlations=correlations, points_enu_m=P,
                      points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
-                     rerun=rerun, fisheye=fisheye)
+                     rerun=rerun, fisheye=fisheye, camera_velocity_enu_m_s=cam_vel,
+                     image_height_px=float(cam.height), readout_s=float(readout), readout_sigma_s=readout_sigma)
 
 
 # ------------------------------------------------------------------------------------------- outputs
@@ -755,7 +818,7 @@ def _residual_row(name, role, est_enu, cov_enu, frame: ProjectFrame, control: Co
 
 
 def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), R=None, C=None, intr=None,
-                 kind="check points") -> ResidualTable:
+                 kind="check points", readout_s: float | None = None) -> ResidualTable:
     R = adj.R_cam_to_enu if R is None else R
     C = adj.centre_enu_m if C is None else C
     intr = adj.intrinsics if intr is None else intr
@@ -767,7 +830,9 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
         ms = [m for m in adj.used_measurements.get(name, []) if m[0] in idx]
         if len(ms) < 2:
             continue
-        t = triangulate(np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms]), R, C, intr, fisheye=adj.fisheye)
+        uv, cams = np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms])
+        t = triangulate(uv, cams, R, C, intr, fisheye=adj.fisheye,
+                        centre_shift_enu_m=adj.centre_shift_enu_m(cams, uv, readout_s))
         table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, t.cov_enu_m2, frame, control, len(ms)))
     return table
 
@@ -779,10 +844,12 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
     # oriented images
     model, params = cm.to_colmap(adj.intrinsics, adj.fisheye)
     w, h = next(iter(rec.cameras.values())).width, next(iter(rec.cameras.values())).height
+    rolling = adj.camera_velocity_enu_m_s is not None  # the readout modelled: the dense step needs it too
     oi = OrientedImages(frame=frame, image_dir=(survey_dir / "images").resolve(),
-                        cameras={1: OrientedCamera(model, w, h, params)},
+                        cameras={1: OrientedCamera(model, w, h, params, adj.readout_s if rolling else 0.0)},
                         images=[OrientedImage(n, 1, adj.R_cam_to_enu[i], adj.centre_enu_m[i],
-                                              np.sqrt(np.abs(np.diag(adj.centre_cov_enu_m2[i]))))
+                                              np.sqrt(np.abs(np.diag(adj.centre_cov_enu_m2[i]))),
+                                              adj.camera_velocity_enu_m_s[i] if rolling else None)
                                 for i, n in enumerate(adj.names)],
                         sparse_xyz_enu_m=adj.points_enu_m, sparse_rgb=adj.points_rgb,
                         extra={"source": f"georef {opts.mode} adjustment"})
@@ -800,9 +867,9 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
             r = adj.rerun(set(controls) - {name})
             if r is None:
                 continue
-            R, C, intr = r
+            R, C, intr, readout = r
             control.points[name].role = "loo"
-            t = _check_table(adj, frame, control, roles=("loo",), R=R, C=C, intr=intr)
+            t = _check_table(adj, frame, control, roles=("loo",), R=R, C=C, intr=intr, readout_s=readout)
             control.points[name].role = "control"
             for row in t.rows:
                 row.role = "control (left out)"
@@ -816,6 +883,11 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
              "estimated": {"lever_arm": adj.lever_arm_sigma_m is not None, "delay": adj.delay_sigma_s is not None},
              "model": "C = A(trigger) + R_cam_to_enu @ lever_arm + v(trigger) * delay",
              "correlations": adj.correlations}
+    if rolling:  # the readout, with the lever arm and delay: what a calibration flight hands on
+        lever.update({"readout_s": round(adj.readout_s, 6),
+                      "readout_sigma_s": None if adj.readout_sigma_s is None else round(adj.readout_sigma_s, 6),
+                      "rolling_shutter_model": "row v seen from C + v(trigger) * (v / image height - 0.5) * readout"})
+        lever["estimated"]["readout"] = adj.readout_sigma_s is not None
     (out / "lever_arm_delay.json").write_text(json.dumps(lever, indent=1))
     (out / "gnss_residuals.json").write_text(json.dumps(adj.gnss_rows, indent=1))
 

@@ -207,8 +207,11 @@ export interface LeverArm {
   lever_arm_sigma_m: [number, number, number] | null;
   delay_s: number;
   delay_sigma_s: number | null;
-  estimated?: { lever_arm: boolean; delay: boolean };
+  estimated?: { lever_arm: boolean; delay: boolean; readout?: boolean };
   model?: string;
+  /** rolling-shutter readout (s), where the adjustment modelled it */
+  readout_s?: number;
+  readout_sigma_s?: number | null;
   correlations?: Record<string, number> | null;
 }
 

@@ -133,6 +133,13 @@ function LeverArmCard({ l }: { l: LeverArm }) {
             <td class="num">{pm(l.delay_s, l.delay_sigma_s, 1000, 1)} ms</td>
             <td>{l.estimated?.delay ?? l.delay_sigma_s !== null ? "yes" : "fixed"}</td>
           </tr>
+          {l.readout_s !== undefined && l.readout_s !== null ? (
+            <tr>
+              <th scope="row">Rolling-shutter readout</th>
+              <td class="num">{pm(l.readout_s, l.readout_sigma_s, 1000, 1)} ms</td>
+              <td>{l.estimated?.readout ?? (l.readout_sigma_s !== null && l.readout_sigma_s !== undefined) ? "yes" : "fixed"}</td>
+            </tr>
+          ) : null}
         </tbody>
       </table>
       {l.model ? <p class="small muted">Model: <code>{l.model}</code> (antenna A at the trigger, camera frame axes as in OpenCV).</p> : null}
