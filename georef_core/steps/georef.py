@@ -150,6 +150,9 @@ def _shutter_flag(first_image: Path, option: bool | None, readout_s: float | Non
     return {"camera_model": model, "rolling_shutter": rolling, "source": source, "modelled": False}
 
 
+READOUT_CORRELATION_WARNING = 0.4  # above it the estimated readout is called weakly determined (docs)
+
+
 def _shutter_outcome(shutter: dict, adj: "_Adjusted", opts: GeorefOptions, image_dir: Path, warnings: list) -> None:
     """Record in ``shutter`` whether the adjustment modelled the rolling shutter (and the readout time it
     used), or warn where a rolling-shutter camera could not be modelled."""
@@ -159,6 +162,19 @@ def _shutter_outcome(shutter: dict, adj: "_Adjusted", opts: GeorefOptions, image
         shutter.update(modelled=True, readout_s=round(adj.readout_s, 6),
                        readout_sigma_s=None if adj.readout_sigma_s is None else round(adj.readout_sigma_s, 6),
                        readout_source="given" if opts.readout_s is not None else "estimated")
+        names = adj.correlations.get("names", [])
+        if "readout" in names:
+            row = np.abs(np.asarray(adj.correlations["matrix"], float)[names.index("readout")])
+            others = [(float(r), n) for r, n in zip(row, names) if n != "readout" and np.isfinite(r)]
+            if others:
+                rho, name = max(others)
+                shutter["readout_strongest_correlation"] = {"with": name, "abs_rho": round(rho, 3)}
+                if rho > READOUT_CORRELATION_WARNING:
+                    warnings.append(
+                        f"{image_dir}: the rolling-shutter readout ({1000 * adj.readout_s:.1f} ms) is correlated "
+                        f"{rho:.2f} with {name}: this block separates them weakly (few lines; on such blocks the "
+                        f"estimate was found tens of ms off with a sigma of a few ms), so its sigma is optimistic; "
+                        f"hold the readout with --readout-ms or a calibration flight's (--calibration)")
         return
     why = "mode 'similarity' does not adjust the images" if opts.mode == "similarity" else \
         "it needs the camera velocities from the GNSS at the triggers, and there are none"

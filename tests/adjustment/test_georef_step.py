@@ -308,7 +308,8 @@ def test_rolling_shutter_readout_is_estimated_and_modelled(rolling_survey, tmp_p
     s = json.loads((out / "georef_summary.json").read_text())
     rs = s["rolling_shutter"]
     assert rs["rolling_shutter"] is True and rs["modelled"] is True and rs["readout_source"] == "estimated"
-    assert not any("rolling shutter" in w for w in s["warnings"])
+    assert not any("rolling shutter" in w or "readout" in w for w in s["warnings"]), s["warnings"]
+    assert rs["readout_strongest_correlation"]["abs_rho"] < 0.4   # measured 0.24 (delay)
     true_lever, true_delay = _truth_lever_delay(rolling_survey)
     err = abs(rs["readout_s"] - 0.040)
     assert err < 3 * rs["readout_sigma_s"] and err < 0.003, rs
@@ -386,3 +387,26 @@ def test_rolling_shutter_simulation_renders_what_it_projects(tmp_path):
     expected = cam.fx * 5.0 * cam.row_time_s(moving[0, 1]) / 40.0
     assert abs(expected) > 1.0
     assert shift_px == pytest.approx(abs(expected), rel=0.05, abs=0.01)
+
+
+def test_rolling_shutter_on_a_small_block_warns_that_the_readout_is_weak(tmp_path):
+    """On the 12-image, two-line scene the readout trades against the across-track lever arm (docs): the
+    run says so, and with the readout given the lever arm and check points come back."""
+    site = tmp_path / "rs"
+    assert main(["simulate", str(site), "--seed", "2", "--small", "--readout-ms", "40", "--quiet"]) == 0
+    out = tmp_path / "free"
+    assert main(["georef", str(site), "--out", str(out), "--no-leave-one-out"]) == 0
+    s = json.loads((out / "georef_summary.json").read_text())
+    corr = s["rolling_shutter"]["readout_strongest_correlation"]
+    assert corr["abs_rho"] > 0.4
+    assert any("readout" in w and "--readout-ms" in w for w in s["warnings"]), s["warnings"]
+    given = tmp_path / "given"
+    given.mkdir()
+    for sub in ("ppk", "sfm"):
+        shutil.copytree(out / sub, given / sub)
+    assert main(["georef", str(site), "--out", str(given), "--readout-ms", "40", "--no-leave-one-out"]) == 0
+    g = json.loads((given / "georef_summary.json").read_text())
+    assert g["rolling_shutter"]["readout_source"] == "given" and not any("readout" in w for w in g["warnings"])
+    true_lever, true_delay = _truth_lever_delay(site)
+    assert np.all(np.abs(np.array(g["lever_arm_delay"]["lever_arm_cam_m"]) - true_lever) < 0.07), g["lever_arm_delay"]
+    assert g["check_points"]["statistics"]["3d"]["rmse_m"] < 0.015, g["check_points"]["statistics"]
