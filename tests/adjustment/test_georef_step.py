@@ -40,6 +40,14 @@ def _linked_copy(survey: Path, dest: Path, without: str) -> Path:
     return dest
 
 
+def _reusing(run: Path, dest: Path) -> Path:
+    """A new output folder holding ``run``'s PPK and SfM, so that a re-run only adjusts."""
+    dest.mkdir()
+    for sub in ("ppk", "sfm"):
+        shutil.copytree(run / sub, dest / sub)
+    return dest
+
+
 def _truth_lever_delay(survey: Path):
     t = json.loads((survey / "truth" / "lever_arm_delay.json").read_text())
     return np.array(t["lever_arm_cam_m"]), t["delay_s"]
@@ -229,10 +237,7 @@ def test_without_events_csv_the_rover_event_records_are_matched_in_exif_time_ord
 
 def test_production_flight_with_a_calibration(survey, first_run, tmp_path, capsys):
     """--calibration CAL_OUT_DIR: the calibration run's camera is held, its lever arm is a prior, no control."""
-    out = tmp_path / "prod"
-    out.mkdir()
-    for sub in ("ppk", "sfm"):
-        shutil.copytree(first_run / sub, out / sub)
+    out = _reusing(first_run, tmp_path / "prod")
     assert main(["georef", str(survey), "--out", str(out), "--control", "none", "--calibration", str(first_run),
                  "--no-leave-one-out"]) == 0
     cal = json.loads((first_run / "georef_summary.json").read_text())
@@ -323,10 +328,7 @@ def test_rolling_shutter_readout_is_estimated_and_modelled(rolling_survey, tmp_p
     rmse = s["check_points"]["statistics"]["3d"]["rmse_m"]
     assert rmse < 0.01, s["check_points"]["statistics"]
 
-    ignored = tmp_path / "ignored"
-    ignored.mkdir()
-    for sub in ("ppk", "sfm"):
-        shutil.copytree(out / sub, ignored / sub)
+    ignored = _reusing(out, tmp_path / "ignored")
     assert main(["georef", str(rolling_survey), "--out", str(ignored), "--global-shutter", "--no-leave-one-out"]) == 0
     g = json.loads((ignored / "georef_summary.json").read_text())
     assert g["rolling_shutter"]["modelled"] is False
@@ -334,10 +336,7 @@ def test_rolling_shutter_readout_is_estimated_and_modelled(rolling_survey, tmp_p
     assert np.max(np.abs(np.array(g["lever_arm_delay"]["lever_arm_cam_m"]) - true_lever)) > 0.1
 
     # a calibration flight hands its readout on: held fixed in the production run
-    prod = tmp_path / "prod"
-    prod.mkdir()
-    for sub in ("ppk", "sfm"):
-        shutil.copytree(out / sub, prod / sub)
+    prod = _reusing(out, tmp_path / "prod")
     assert main(["georef", str(rolling_survey), "--out", str(prod), "--control", "none", "--calibration", str(out),
                  "--no-leave-one-out"]) == 0
     p = json.loads((prod / "georef_summary.json").read_text())["rolling_shutter"]
@@ -400,10 +399,7 @@ def test_rolling_shutter_on_a_small_block_warns_that_the_readout_is_weak(tmp_pat
     corr = s["rolling_shutter"]["readout_strongest_correlation"]
     assert corr["abs_rho"] > 0.4
     assert any("readout" in w and "--readout-ms" in w for w in s["warnings"]), s["warnings"]
-    given = tmp_path / "given"
-    given.mkdir()
-    for sub in ("ppk", "sfm"):
-        shutil.copytree(out / sub, given / sub)
+    given = _reusing(out, tmp_path / "given")
     assert main(["georef", str(site), "--out", str(given), "--readout-ms", "40", "--no-leave-one-out"]) == 0
     g = json.loads((given / "georef_summary.json").read_text())
     assert g["rolling_shutter"]["readout_source"] == "given" and not any("readout" in w for w in g["warnings"])

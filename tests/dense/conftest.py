@@ -21,15 +21,23 @@ def rendering_available() -> bool:
     return True
 
 
-@pytest.fixture(scope="session")
-def dense_sim(tmp_path_factory):
+def simulate_small_survey(tmp_path_factory, name: str, readout_s: float = 0.0):
+    """The small simulated survey (seed SEED, no GNSS files), its camera with a rolling shutter of
+    ``readout_s`` if given."""
     if not rendering_available():
         pytest.skip("open3d / Pillow / piexif / rasterio / opencv / laspy missing")
     from georef_core.sim import SimulationOptions, simulate_site
 
     options = SimulationOptions.small()
     options.gnss = None
-    return simulate_site(tmp_path_factory.mktemp("dense_sim"), seed=SEED, options=options, verbose=False)
+    if readout_s:
+        options.camera = options.camera.rolling(readout_s)
+    return simulate_site(tmp_path_factory.mktemp(name), seed=SEED, options=options, verbose=False)
+
+
+@pytest.fixture(scope="session")
+def dense_sim(tmp_path_factory):
+    return simulate_small_survey(tmp_path_factory, "dense_sim")
 
 
 @pytest.fixture(scope="session")

@@ -12,19 +12,12 @@ import pytest
 
 from georef_core.dense.dsm_compare import compare_dsm
 
-from .conftest import rendering_available
+from .conftest import simulate_small_survey
 
 
 @pytest.fixture(scope="module")
 def rolling_sim(tmp_path_factory):
-    if not rendering_available():
-        pytest.skip("open3d / Pillow / piexif / rasterio / opencv / laspy missing")
-    from georef_core.sim import SimulationOptions, simulate_site
-
-    options = SimulationOptions.small()
-    options.gnss = None
-    options.camera = options.camera.rolling(0.060)
-    return simulate_site(tmp_path_factory.mktemp("dense_rs"), seed=1, options=options, verbose=False)
+    return simulate_small_survey(tmp_path_factory, "dense_rs", readout_s=0.060)
 
 
 def _dsm_errors(sim, out, oriented, work_area_bounds):
