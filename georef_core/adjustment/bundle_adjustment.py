@@ -87,7 +87,7 @@ class BundleProblem:
 
     def row_offset_s_per_readout(self) -> np.ndarray:
         """(M,) time of each image measurement's row from the trigger, in units of the readout time."""
-        return self.obs_uv_px[:, 1] / self.image_height_px - 0.5
+        return row_offset_per_readout(self.obs_uv_px[:, 1], self.image_height_px)
 
 
 @dataclass
@@ -161,11 +161,24 @@ class _Layout:
         self.n_pts = len(prob.points_enu_m)
 
 
+def row_offset_per_readout(v_px: np.ndarray, image_height_px: float) -> np.ndarray:
+    """Time of image row(s) ``v_px`` from the image's time (its middle row's), in units of the readout time."""
+    return np.asarray(v_px, float) / image_height_px - 0.5
+
+
+def rolling_shutter_shift(velocity_enu_m_s: np.ndarray, v_px: np.ndarray, image_height_px: float,
+                          readout_s: float) -> np.ndarray:
+    """(n, 3) where the camera was, from its centre, when each measurement's row was exposed: velocity (n, 3)
+    x the row's time (the rolling-shutter model of the module docstring)."""
+    return np.asarray(velocity_enu_m_s, float) * (readout_s * row_offset_per_readout(v_px, image_height_px))[:, None]
+
+
 def _row_shift(prob: BundleProblem, readout_s: float) -> np.ndarray | float:
     """(M, 3) displacement of each measurement's camera centre at its row's exposure (rolling shutter), or 0."""
     if not prob.rolling_shutter:
         return 0.0
-    return prob.camera_velocity_enu_m_s[prob.obs_camera] * (readout_s * prob.row_offset_s_per_readout())[:, None]
+    return rolling_shutter_shift(prob.camera_velocity_enu_m_s[prob.obs_camera], prob.obs_uv_px[:, 1],
+                                 prob.image_height_px, readout_s)
 
 
 def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None, readout=None):

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..adjustment import camera_model as cm
-from ..adjustment.bundle_adjustment import BundleOptions, BundleProblem, adjust
+from ..adjustment.bundle_adjustment import BundleOptions, BundleProblem, adjust, rolling_shutter_shift
 from ..adjustment.control_points import ControlData, load_control, point_sigma_enu_cov, points_to_enu
 from ..adjustment.lever_arm_delay import estimate_lever_arm_delay, fit_similarity_delay
 from ..adjustment.residual_table import ResidualRow, ResidualTable
@@ -361,8 +361,11 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     from ..photo.sfm import SfmOptions, run_sfm
     from .gnss_solve import read_survey_json, run_survey_gnss
 
-    opts = georef_options_from_dict(options) if isinstance(options, dict) else (options or GeorefOptions())
-    validate_shutter_options(opts)
+    if isinstance(options, dict):
+        opts = georef_options_from_dict(options)  # validated there
+    else:
+        opts = options or GeorefOptions()
+        validate_shutter_options(opts)
     if opts.mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}")
     survey_dir, out = Path(survey_dir), Path(out_dir)
@@ -521,8 +524,8 @@ class _Adjusted:
         for a global shutter (bundle_adjustment's rolling-shutter model)."""
         if self.camera_velocity_enu_m_s is None:
             return None
-        readout = self.readout_s if readout_s is None else readout_s
-        return self.camera_velocity_enu_m_s[cam_idx] * (readout * (uv_px[:, 1] / self.image_height_px - 0.5))[:, None]
+        return rolling_shutter_shift(self.camera_velocity_enu_m_s[cam_idx], uv_px[:, 1], self.image_height_px,
+                                     self.readout_s if readout_s is None else readout_s)
 
 
 def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr,
@@ -681,7 +684,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                              control_enu_m=np.array([control_enu[n] for n in gcp_names]).reshape(-1, 3),
                              control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]),
                              fisheye=fisheye, camera_velocity_enu_m_s=cam_vel,
-                             image_height_px=float(cam.height) if cam_vel is not None else 0.0, readout_s=float(Ts))
+                             image_height_px=float(cam.height), readout_s=float(Ts))
         if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
             prob.lever_arm_prior_cam_m = lever0.copy()
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
@@ -803,9 +806,11 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             return None
         return r.problem.R_cam_to_enu, r.problem.centre_enu_m, r.problem.intrinsics, r.problem.readout_s
 
-    readout, readout_sigma = (final[0].readout_s, None) if final is not None else (readout0, None)
-    if final is not None and "readout" in res.global_names:
-        readout_sigma = res.value("readout")[1]
+    readout, readout_sigma = readout0, None
+    if final is not None:
+        readout = final[0].readout_s
+        if "readout" in res.global_names:
+            readout_sigma = res.value("readout")[1]
     return _Adjusted(names=names, R_cam_to_enu=R, centre_enu_m=C, centre_cov_enu_m2=ccov, intrinsics=intr,
                      intrinsics_sigma=isig, lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
                      delay_s=float(delay), delay_sigma_s=delay_sigma, correlations=correlations, points_enu_m=P,
