@@ -29,7 +29,7 @@ from georef_core.gnss.judged_comparison import judge_fixes  # noqa: E402
 from georef_core.gnss.ppk import prepare, solve_files  # noqa: E402
 from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
 from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402
-from tests.gnss.rtklib_cases import reference_cases, reversed_conf, run_demo5  # noqa: E402
+from tests.gnss.rtklib_cases import reference_cases, reverse_passes, run_demo5  # noqa: E402
 
 DEFAULT = [("cssrlib_2021_265_car_kinematic", "kinematic_l1l2_fwd_fah"),
            ("cssrlib_2021_265_car_kinematic", "kinematic_l1_fwd_fah"),
@@ -82,12 +82,7 @@ def main() -> int:
         data = prepare(load_observations(rover).observations, load_observations(base).observations,
                        load_navigation(navs), opts)[0]
         # forward or backward runs: both engines' passes the other way are the judge's witnesses (untimed)
-        rev_conf = reversed_conf(conf, tmp)
-        reverse = {}
-        if rev_conf is not None:
-            run_demo5(rev_conf, [rover, base, *navs], tmp / "demo5_rev.pos")
-            run_ours(rev_conf, rover, base, navs, tmp / "ours_rev.pos")
-            reverse = {"ours_reverse": read_pos(tmp / "ours_rev.pos"), "ref_reverse": read_pos(tmp / "demo5_rev.pos")}
+        reverse = reverse_passes(conf, rover, base, navs, tmp)
         j = judge_fixes(data, opts, read_pos(tmp / "ours.pos"), read_pos(tmp / "demo5.pos"), **reverse)
         c, g = j.raw, j.judged
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)

@@ -61,6 +61,23 @@ def reversed_conf(conf: Path, out_dir: Path) -> Path | None:
     return out
 
 
+def reverse_passes(conf, rover, base, navs, out_dir, tag: str = "") -> dict:
+    """For a forward (or backward) configuration, both engines' solutions of the same files the other way,
+    as judge_fixes takes them ({"ours_reverse", "ref_reverse"}: the witnesses where the carrier phase is not
+    decisive); {} for a combined one. Written as out_dir/{tag}ours_reversed.pos, {tag}demo5_reversed.pos."""
+    from georef_core.gnss.ppk import solve_files
+    from georef_core.gnss.rtk_options import read_rtklib_conf
+    from georef_core.gnss.solution_io import read_pos, write_pos
+
+    rev = reversed_conf(conf, out_dir)
+    if rev is None:
+        return {}
+    ours, theirs = Path(out_dir) / f"{tag}ours_reversed.pos", Path(out_dir) / f"{tag}demo5_reversed.pos"
+    run_demo5(rev, [rover, base, *navs], theirs)
+    write_pos(ours, solve_files(rover, base, navs, read_rtklib_conf(rev).options))
+    return {"ours_reverse": read_pos(ours), "ref_reverse": read_pos(theirs)}
+
+
 def run_demo5(conf, files, out) -> float:
     """RTKLIB demo5 (pyrtklib5, in this process) on `files` with the configuration `conf`, writing the .pos
     `out`; returns the seconds postpos took."""

@@ -20,7 +20,7 @@ from georef_core.gnss.rtk_options import read_rtklib_conf
 from georef_core.gnss.solution_compare import compare_pos, fixed_position_at
 from georef_core.gnss.solution_io import read_pos, write_pos
 
-from .rtklib_cases import reference_cases, reversed_conf, run_demo5, shared_gnss_dir
+from .rtklib_cases import reference_cases, reverse_passes, reversed_conf, run_demo5, shared_gnss_dir
 
 CASES = reference_cases()
 if not CASES:
@@ -49,13 +49,7 @@ def _judged(case, ours, ref, tmp_path):
     opts = read_rtklib_conf(conf).options
     data = prepare(load_observations(rover).observations, load_observations(base).observations,
                    load_navigation(navs), opts)[0]
-    reverse = {}
-    rev_conf = reversed_conf(conf, tmp_path)
-    if rev_conf is not None:
-        run_demo5(rev_conf, [rover, base, *navs], tmp_path / f"{name}_demo5_reversed.pos")
-        write_pos(tmp_path / f"{name}_reversed.pos", solve_files(rover, base, navs, read_rtklib_conf(rev_conf).options))
-        reverse = {"ours_reverse": read_pos(tmp_path / f"{name}_reversed.pos"),
-                   "ref_reverse": read_pos(tmp_path / f"{name}_demo5_reversed.pos")}
+    reverse = reverse_passes(conf, rover, base, navs, tmp_path, f"{name}_")
     return judge_fixes(data, opts, ours, ref, **reverse), data, opts
 
 
