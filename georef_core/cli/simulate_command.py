@@ -55,6 +55,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--readout-ms", type=float, metavar="MS",
                    help="a rolling-shutter camera with this readout time, first to last row (ms; default: global "
                         "shutter); EXIF model SimCam-RS")
+    p.add_argument("--aircraft", choices=["generic", "dji-rtk"], default="generic",
+                   help="generic: images/, rover/, base/, nav/, events.csv with a camera fixed to the airframe; "
+                        "dji-rtk: the flight folder(s) a DJI RTK aircraft writes (photos with RTK XMP tags, "
+                        "Timestamp.MRK with per-exposure antenna-to-camera offsets, RTCM 3 raw log) from a "
+                        "gimbal-stabilised camera, plus base/ and gcp/ (docs/dji.md)")
+    p.add_argument("--flights", type=int, default=1, metavar="N",
+                   help="with --aircraft dji-rtk: split the survey into N flights (battery swaps), each its own "
+                        "folder, and the base file in two (default 1)")
     p.add_argument("--workers", type=int, help="images rendered concurrently (default 2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -152,6 +160,20 @@ def options_from_args(args):
         fl["lever_arm_cam_m"] = parse_three_numbers(args.lever_arm, "--lever-arm")
     if args.delay is not None:
         fl["trigger_delay_s"] = args.delay
+    if args.aircraft == "dji-rtk":
+        if args.lever_arm is not None:
+            raise GeorefError("--lever-arm: a DJI RTK aircraft's gimbal camera has no fixed lever arm (its MRK logs "
+                              "the antenna-to-camera offset of every exposure)")
+        if args.no_gnss:
+            raise GeorefError("--aircraft dji-rtk writes the aircraft's raw GNSS log: not with --no-gnss")
+        fl["camera_mount"] = "gimbal"
+        fl.setdefault("trigger_delay_s", 0.0)        # DJI's MRK times are exposure times
+        if args.receiver is None:
+            args.receiver = "l1l2"                      # DJI RTK receivers track two frequencies
+    elif args.flights != 1:
+        raise GeorefError("--flights: only with --aircraft dji-rtk")
+    if args.flights < 1:
+        raise GeorefError(f"--flights {args.flights}: at least 1")
     if fl:
         o.flight = replace(o.flight, **fl)
     if args.size is not None:
@@ -271,6 +293,11 @@ def run(args) -> int:
                           if "navigation file" in str(exc) else str(exc)) from None
     finally:
         bar.close()
+    dji = None
+    if args.aircraft == "dji-rtk":
+        from ..sim.dji_flight import write_dji_flights
+
+        dji = write_dji_flights(res, n_flights=args.flights, seed=args.seed)
     total = time.perf_counter() - t0
     parts = ", ".join(f"{k} {v:.1f} s" for k, v in res.timings_s.items())
     what = f"{len(res.image_paths)} images ({res.camera.width}x{res.camera.height})" if res.image_paths else \
@@ -281,7 +308,10 @@ def run(args) -> int:
         gnss = (f", GNSS {s['receiver']['rover']} RINEX {s['rinex_version']} (rover {s['rover']['n_epochs']} epochs "
                 f"at {s['rover']['rate_hz']:g} Hz, base {s['base']['n_epochs']})")
     print(f"simulated {what}{gnss} in {total:.1f} s ({parts}) -> {res.out_dir}")
-    if res.gnss is not None:
+    if dji is not None:
+        print(f"DJI RTK flight folder(s): {', '.join(dji['flights'])} ({dji['photos']} photos)")
+        print(f"georeference: georef georef {res.out_dir} --out {res.out_dir}/out")
+    elif res.gnss is not None:
         print(f"PPK: cd {res.out_dir} && {res.gnss.summary['solve_command']}")
     return 0
 

@@ -39,6 +39,27 @@ def read_bytes(path) -> bytes:
     return data
 
 
+def read_head_bytes(path, n: int = 65536) -> bytes:
+    """The first ``n`` bytes of the unpacked content: only those are read of a plain or gzip file (a large
+    log is recognised without reading it whole); a Unix-compress file is unpacked whole."""
+    p = Path(path)
+    if not p.is_file():
+        return read_bytes(p)[:n]          # raises the "not found" / "is a folder" error
+    with open(p, "rb") as f:
+        magic = f.read(2)
+    if magic == _GZIP_MAGIC:
+        try:
+            with gzip.open(p, "rb") as g:
+                data = g.read(n)
+        except (OSError, EOFError, zlib.error) as exc:
+            raise InputFileError(p, f"gzip data is truncated or corrupt ({exc})") from None
+        return read_bytes(p)[:n] if data[:2] in (_GZIP_MAGIC, _COMPRESS_MAGIC) else data
+    if magic == _COMPRESS_MAGIC:
+        return read_bytes(p)[:n]
+    with open(p, "rb") as f:
+        return f.read(n)
+
+
 def is_hatanaka(data: bytes) -> bool:
     head = data[:200]
     return b"CRINEX VERS" in head or b"COMPACT RINEX FORMAT" in head

@@ -9,6 +9,7 @@ choosing the tracking code by priority.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +26,12 @@ class ReceiverHeader:
     interval_s: float | None = None
     glonass_fcn: dict[str, int] = field(default_factory=dict)   # 'R05' -> -4
     rinex_version: float | None = None
+    # where approx_position_ecef_m came from: "rinex-header" (APPROX POSITION XYZ), "rtcm-station" (RTCM 3
+    # 1005/1006 reference point), "receiver-fixes" (the median of a UBX log's own navigation fixes:
+    # metre-level, only a starting point, never taken as the base position before an averaged single-point
+    # solution; see ppk._base_position), or "" = not stated: a header position as before the field existed
+    # (the RINEX header's when rinex_version is set)
+    approx_position_source: str = ""
 
 
 @dataclass
@@ -125,3 +132,77 @@ def select_bands(raw: RawObservations, priority: dict[str, tuple[str, ...]] = CO
                 taken |= avail
     return ObservationSet(raw.source_path, raw.gps_time_s, list(raw.sat_ids), code, phase, dopp, snr, lli,
                           chosen, names, raw.header, raw.event_gps_time_s)
+
+
+def join_observations(parts: list[RawObservations], gap_factor: float = 5.0) -> tuple[RawObservations, list[str]]:
+    """Several files of one receiver (a drone's flights, a base's hourly files or a log split by restarts)
+    as one record in time order, and notes naming the gaps between them and any repeated epochs.
+
+    Satellites and observation codes are the union; an epoch present in two files (overlapping hourly
+    files) is kept once, from the earlier file. The header is the first file's; when two files' header
+    positions differ by more than 1 m they are not the same station (InputFileError-worthy for a base:
+    the caller decides), which is reported in the notes."""
+    parts = sorted((p for p in parts if p.n_epochs), key=lambda p: float(p.gps_time_s[0]))
+    if not parts:
+        raise ValueError("join_observations needs at least one file with epochs")
+    if len(parts) == 1:
+        return parts[0], []
+    notes: list[str] = []
+    sat_ids = sorted({s for p in parts for s in p.sat_ids}, key=lambda s: ("GREJC".find(s[0]), s))
+    codes: list[str] = []
+    for p in parts:
+        codes += [c for c in p.obs_codes if c not in codes]
+    n_e = sum(p.n_epochs for p in parts)
+    values = np.full((n_e, len(sat_ids), len(codes)), np.nan)
+    lli = np.zeros((n_e, len(sat_ids), len(codes)), dtype=np.uint8)
+    ssi = np.zeros_like(lli)
+    times = np.empty(n_e)
+    flags = np.zeros(n_e, dtype=np.uint8)
+    s_col = {s: i for i, s in enumerate(sat_ids)}
+    c_col = {c: i for i, c in enumerate(codes)}
+    e0 = 0
+    starts = []
+    for p in parts:
+        starts.append(e0)
+        e1 = e0 + p.n_epochs
+        si = np.array([s_col[s] for s in p.sat_ids], dtype=np.int64)
+        ci = np.array([c_col[c] for c in p.obs_codes], dtype=np.int64)
+        values[e0:e1, si[:, None], ci[None, :]] = p.values
+        lli[e0:e1, si[:, None], ci[None, :]] = p.lli
+        ssi[e0:e1, si[:, None], ci[None, :]] = p.ssi
+        times[e0:e1] = p.gps_time_s
+        if p.epoch_flags is not None:
+            flags[e0:e1] = p.epoch_flags
+        e0 = e1
+    phase_cols = np.array([c_col[c] for c in codes if c.startswith("L")], dtype=np.int64)
+    for k, (a, b) in enumerate(zip(parts, parts[1:]), start=1):
+        gap = float(b.gps_time_s[0] - a.gps_time_s[-1])
+        step = (a.header.interval_s or float(np.median(np.diff(a.gps_time_s)))) if a.n_epochs > 1 else 1.0
+        if gap > gap_factor * max(step, 1e-3):
+            notes.append(f"gap of {gap:.0f} s between {Path(a.source_path).name} and {Path(b.source_path).name}")
+            # tracking across a gap between files is not known to be continuous: a slip on every phase
+            first_phase = values[starts[k]][:, phase_cols]
+            lli[starts[k]][:, phase_cols] |= np.where(np.isnan(first_phase), 0, 1).astype(np.uint8)
+        elif gap < 0:
+            notes.append(f"{Path(a.source_path).name} and {Path(b.source_path).name} overlap by {-gap:.0f} s")
+    order = np.argsort(times, kind="stable")
+    key = np.round(times[order] * 1e6).astype(np.int64)
+    first = np.ones(len(key), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    if not first.all():
+        notes.append(f"{int((~first).sum())} epoch(s) present in two of the files were kept once")
+    keep = order[first]
+    positions = [p.header.approx_position_ecef_m for p in parts if p.header.approx_position_ecef_m is not None
+                 and getattr(p.header, "approx_position_source", "") != "receiver-fixes"]   # fixes differ by metres
+    if len(positions) > 1:
+        spread = float(max(np.linalg.norm(q - positions[0]) for q in positions))
+        if spread > 1.0:
+            notes.append(f"the files' header positions differ by up to {spread:.1f} m (not one station?)")
+    header = parts[0].header
+    for p in parts[1:]:
+        for sat, fcn in p.header.glonass_fcn.items():
+            header.glonass_fcn.setdefault(sat, fcn)
+    events = np.unique(np.concatenate([p.event_gps_time_s for p in parts]))
+    joined = RawObservations(" + ".join(p.source_path for p in parts), times[keep], sat_ids, codes, values[keep],
+                             lli[keep], ssi[keep], header, events, flags[keep])
+    return joined, notes

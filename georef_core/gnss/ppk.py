@@ -4,6 +4,9 @@ backward or both, and combines."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import time as _time
 from dataclasses import dataclass, field
 
@@ -24,7 +27,7 @@ from .rtk_filter import STATUS_FIX, STATUS_NONE, PreparedData, RtkFilter
 from .rtk_options import RtkOptions
 from .satellite_geometry import compute_observed_satellites, geometric_range_m
 from .smoothing import combine
-from .spp import CLOCK_COLUMN, SppResult, solve_spp
+from .spp import CLOCK_COLUMN, AveragedPosition, SppResult, average_spp_positions, solve_spp
 from .tdcp_slips import time_differenced_slips
 
 
@@ -75,23 +78,75 @@ def reindex_satellites(obs: ObservationSet, sat_ids: list[str]) -> ObservationSe
                           take(obs.lli, 0), take(obs.signal_codes, 0), obs.signal_names, obs.header, obs.event_gps_time_s)
 
 
+def _header_position_source(header) -> str:
+    """Where a receiver header's approximate position came from: approx_position_source, or for a header
+    that does not say (readers older than the field) 'rinex-header' when it was read from RINEX."""
+    if header.approx_position_source:
+        return header.approx_position_source
+    return "rinex-header" if header.rinex_version is not None else ""
+
+
+def _header_position_is_surveyed(header) -> bool:
+    """A header position that stands for the base's station coordinates (RINEX APPROX POSITION XYZ, an RTCM
+    station record, or a header of unstated origin, as before), not the receiver's own metre-level fixes."""
+    return header.approx_position_ecef_m is not None and _header_position_source(header) != "receiver-fixes"
+
+
+def _averaged_spp_note(path: str, avg: AveragedPosition, receiver_fix: np.ndarray | None) -> str:
+    def enu(v):
+        return "/".join(f"{x:.2f}" for x in v)
+
+    text = (f"{path}: no base position given (--base-pos) nor in a RINEX header; using the averaged single-point "
+            f"position of the base log: the weighted mean of {avg.n_used} of {avg.n_epochs} epochs"
+            f"{f' ({avg.n_rejected} beyond the chi-square bound dropped)' if avg.n_rejected else ''} over "
+            f"{avg.span_s / 60:.0f} min. Scatter of single epochs E/N/U {enu(avg.scatter_enu_m)} m; sigma of the "
+            f"mean E/N/U {enu(avg.sigma_mean_enu_m)} m (the scatter over the square root of {avg.n_independent} "
+            f"independent {avg.block_s:.0f} s blocks: epochs are time-correlated, so the formal "
+            f"{enu(avg.formal_sigma_mean_enu_m)} m is optimistic; errors of the broadcast ionosphere and "
+            "troposphere models common to all epochs are not in it). A single-point position is metre-level: the "
+            "whole trajectory shifts by its error. Give --base-pos with a surveyed position.")
+    if receiver_fix is not None:
+        text += (f" (The receiver's own fixes in the log, not used, lie "
+                 f"{np.linalg.norm(receiver_fix - avg.position_ecef_m):.1f} m from it.)")
+    return text
+
+
 def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult | None) -> tuple[np.ndarray, list[str]]:
+    """The base antenna position, from the best source available: --base-pos > the header's position (RINEX
+    APPROX POSITION XYZ plus ANTENNA: DELTA H/E/N, or an RTCM station record) > the averaged single-point
+    solution of the base log (average_spp_positions) > the receiver's own fixes recorded in the log (UBX).
+    The note names the source and the file."""
     notes = []
+    header = base.header
+    source = _header_position_source(header)
+    receiver_fix = (np.array(header.approx_position_ecef_m, dtype=float)
+                    if header.approx_position_ecef_m is not None and source == "receiver-fixes" else None)
+    avg = None
+    if opts.base_position_ecef_m is None and not _header_position_is_surveyed(header) and base_spp is not None:
+        avg = average_spp_positions(base.gps_time_s, base_spp.position_ecef_m, base_spp.covariance_ecef_m2,
+                                    base_spp.valid)
     if opts.base_position_ecef_m is not None:
         pos = np.array(opts.base_position_ecef_m, dtype=float)
-    elif base.header.approx_position_ecef_m is not None:
-        pos = np.array(base.header.approx_position_ecef_m, dtype=float)
+    elif _header_position_is_surveyed(header):
+        pos = np.array(header.approx_position_ecef_m, dtype=float)
         # the header position is the marker; the antenna reference point is ANTENNA: DELTA H/E/N above it
-        h, east, north = (float(v) for v in base.header.antenna_delta_hen_m)
+        h, east, north = (float(v) for v in header.antenna_delta_hen_m)
         if h or east or north:
             lat, lon, _ = ecef_to_geodetic(pos)
             pos = pos + ecef_to_enu_rotation(lat, lon).T @ np.array([east, north, h])
-        notes.append(f"base position taken from the RINEX header of {base.source_path}"
+        where = {"rinex-header": "the RINEX header",
+                 "rtcm-station": "the reference station record (RTCM 3 1005/1006)"}.get(source, "the header")
+        notes.append(f"base position taken from {where} of {base.source_path}"
                      + (f" (plus its antenna delta H/E/N {h:.4f}/{east:.4f}/{north:.4f} m)" if h or east or north else ""))
-    elif base_spp is not None and base_spp.valid.any():
-        pos = np.median(base_spp.position_ecef_m[base_spp.valid], axis=0)   # valid ones are finite
-        notes.append(f"{base.source_path}: no base position given nor in the header; using the median single-point "
-                     "position (metre-level: the whole trajectory shifts by the same error). Give --base-pos.")
+    elif avg is not None:
+        pos = avg.position_ecef_m.copy()
+        notes.append(_averaged_spp_note(base.source_path, avg, receiver_fix))
+    elif receiver_fix is not None:
+        pos = receiver_fix
+        notes.append(f"{base.source_path}: no base position given (--base-pos) nor in a RINEX header, and no "
+                     "single-point solution of the base log; using the median of the receiver's own navigation fixes "
+                     "recorded in the log (metre-level, not a surveyed position: the whole trajectory shifts by its "
+                     "error). Give --base-pos.")
     else:
         raise ProcessingError(f"{base.source_path}: the base position is unknown (not given, not in the header, "
                               "and no single-point solution); give --base-pos")
@@ -155,8 +210,13 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
         raise ProcessingError(f"{rover.source_path}: no epoch has a single-point solution (too few satellites "
                               "with navigation data above the elevation mask)")
     base_spp = None
-    if opts.base_position_ecef_m is None and base.header.approx_position_ecef_m is None:
-        base_spp = solve_spp(base, bsat, nav, opts)
+    if opts.base_position_ecef_m is None and not _header_position_is_surveyed(base.header):
+        # start from the receiver's own fixes, else the rover (within max_baseline_km): the SPP kernel needs
+        # a start away from the Earth's centre
+        start = base.header.approx_position_ecef_m
+        if start is None:
+            start = np.median(spp.position_ecef_m[spp.valid], axis=0)
+        base_spp = solve_spp(base, bsat, nav, opts, start)
     base_pos, notes = _base_position(base, opts, base_spp)
     baseline_m = float(np.median(np.linalg.norm(spp.position_ecef_m[spp.valid] - base_pos, axis=1)))
     if baseline_m > opts.max_baseline_km * 1e3:
@@ -318,11 +378,41 @@ def _utc_text(gps_time_s: float) -> str:
     return f"{gps_time_s_to_datetime(gps_time_s):%Y-%m-%d %H:%M}"
 
 
+def _as_paths(p) -> list:
+    return [p] if isinstance(p, (str, bytes, os.PathLike)) else list(p)
+
+
+def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
+    """One receiver's observations from one or several files (flights, hourly files), joined in time
+    order, with the navigation data the files carry and notes on gaps. ``role`` names it in messages."""
+    from .input_files import LoadedObservations
+    from .observations import join_observations
+
+    paths = _as_paths(paths)
+    if not paths:
+        raise ProcessingError(f"no {role} observation file")
+    loaded = [load_observations(p, approx_gps_time_s) for p in paths]
+    if len(loaded) == 1:
+        return loaded[0], []
+    raw, notes = join_observations([x.observations for x in loaded])
+    if role == "base" and any("header positions differ" in n for n in notes):
+        raise InputFileError(paths[0], f"the base files {', '.join(Path(p).name for p in paths)} are not from one "
+                                       f"station: {next(n for n in notes if 'header positions' in n)}")
+    nav = None
+    for x in loaded:
+        if x.navigation is not None:
+            nav = x.navigation if nav is None else nav.merge(x.navigation)
+    notes = [f"{role}: {len(paths)} files joined" + (f" ({'; '.join(notes)})" if notes else "")]
+    return LoadedObservations(raw, nav, "joined"), notes
+
+
 def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSolution:
-    """Load the files (RINEX 2/3 in any packing, or UBX) and solve."""
+    """Load the files (RINEX 2/3 in any packing, UBX or RTCM 3; a rover or base of several files is joined
+    in time order) and solve."""
     t0 = _time.perf_counter()
-    rover = load_observations(rover_path)
-    base = load_observations(base_path)
+    rover, rover_notes = load_receiver(rover_path, "rover")
+    first = float(rover.observations.gps_time_s[0]) if rover.observations.n_epochs else None
+    base, base_notes = load_receiver(base_path, "base", first)
     window = _observation_window_gps_s(rover.observations, base.observations)
     nav = load_navigation(list(nav_paths), window) if nav_paths else NavigationData()
     for extra in (rover.navigation, base.navigation):
@@ -334,8 +424,14 @@ def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSoluti
                               f"{_utc_text(window[1])} GPST): the records of {', '.join(map(str, nav_paths))} span "
                               f"{_utc_text(a)} to {_utc_text(b)}")
     if nav.n_records == 0:
-        raise InputFileError(nav_paths[0] if nav_paths else rover_path, "no navigation data (give a navigation file)")
+        named = ", ".join(Path(p).name for p in _as_paths(rover_path) + _as_paths(base_path))
+        raise InputFileError(nav_paths[0] if nav_paths else _as_paths(rover_path)[0],
+                             f"no navigation data: the observation files ({named}) carry no ephemerides"
+                             + (" and the navigation files hold none" if nav_paths else
+                                " and no navigation file was given (add the RINEX navigation file of the day, "
+                                "e.g. the base's .nav or a CORS BRDC file)"))
     load_s = _time.perf_counter() - t0
     sol = solve(rover.observations, base.observations, nav, opts)
+    sol.warnings[:0] = rover_notes + base_notes
     sol.timings_s["load"] = load_s
     return sol

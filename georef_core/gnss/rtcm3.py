@@ -518,8 +518,10 @@ def decode_rtcm3_bytes(data: bytes, source_path: str = "<bytes>", *, approx_gps_
     header.antenna_type = station.antenna_descriptor
     header.marker_name = f"{station.station_id:04d}" if station.station_id is not None else ""
     if station.arp_ecef_m is not None:
+        # 1005/1006 give the antenna reference point itself (1006's height is the ARP above the marker,
+        # for information): the ARP is the base position, with no delta to add
         header.approx_position_ecef_m = station.arp_ecef_m.copy()
-        header.antenna_delta_hen_m = np.array([station.antenna_height_m, 0.0, 0.0])
+        header.approx_position_source = "rtcm-station"
     observations = _build_observations(cells, t_arr, glonass_fcn, source_path, header, slip_on_lock_gap, warnings)
     if observations.n_epochs == 0:
         warnings.append("no MSM observation messages in the stream (navigation or station data only)")

@@ -1,7 +1,8 @@
 """Single point positioning (code, L1) and Doppler velocity for every epoch of a receiver: weighted
 Gauss-Newton with one receiver clock per system, elevation-dependent weights, broadcast ionosphere and a
 troposphere model, and iterative rejection of outlying pseudoranges. Each epoch is solved on its own, in
-compiled code (spp_kernels.py); this module prepares the arrays."""
+compiled code (spp_kernels.py); this module prepares the arrays. ``average_spp_positions`` turns the epochs
+of a static receiver (a base without a surveyed position) into one robust weighted mean with an honest sigma."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from .atmosphere import klobuchar_parameters
 from .atmosphere_kernels import TROPO_MODELS
 from .constants import CLIGHT_M_S, wavelength_table_m
 from .ephemeris import group_delay_s, select_ephemeris
+from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .navigation import NavigationData
 from .observations import ObservationSet
 from .rtk_options import RtkOptions
@@ -103,3 +105,106 @@ def _doppler_velocity(obs: ObservationSet, sats: ObservedSatellites, pos: np.nda
     return doppler_velocity(f64(rate_obs), np.ascontiguousarray(ok, dtype=bool), f64(np.nan_to_num(sats.position_ecef_m)),
                             f64(np.nan_to_num(sats.velocity_ecef_m_s)), f64(CLIGHT_M_S * np.nan_to_num(sats.clock_drift_s_s)),
                             f64(np.nan_to_num(pos)), f64(sigma))
+
+
+# chi-square distribution with 3 degrees of freedom: median and the 99.9 % quantile
+CHI2_3DOF_MEDIAN = 2.3659738843753377
+CHI2_3DOF_P999 = 16.266236196238129
+
+
+@dataclass
+class AveragedPosition:
+    """A static receiver's position from its per-epoch single-point solutions (average_spp_positions).
+
+    The sigmas are in the local east/north/up frame at the position. ``sigma_mean_enu_m`` is the one to
+    quote: the scatter of single epochs divided by the square root of the number of independent blocks
+    (``n_independent``, epochs ``block_s`` apart and more are taken as independent), never below the
+    formal one. ``formal_sigma_mean_enu_m`` treats every epoch as independent with its own covariance:
+    optimistic, since pseudorange errors (multipath, atmosphere, orbits) are correlated over minutes."""
+
+    position_ecef_m: np.ndarray            # (3,)
+    covariance_ecef_m2: np.ndarray         # (3, 3) of the mean, matching sigma_mean_enu_m
+    sigma_mean_enu_m: np.ndarray           # (3,) decorrelation-aware standard deviation of the mean
+    scatter_enu_m: np.ndarray              # (3,) standard deviation of single epochs about the mean
+    formal_sigma_mean_enu_m: np.ndarray    # (3,) from the epoch covariances as if independent
+    n_epochs: int                          # epochs with a usable solution (finite, positive-definite covariance)
+    n_used: int                            # kept after the outlier test
+    n_independent: int                     # independent blocks among the kept epochs (n_eff)
+    block_s: float
+    span_s: float                          # first to last kept epoch
+    variance_factor: float                 # robust scale of the epoch covariances (median chi-square / 2.366)
+    used: np.ndarray                       # (E,) bool over the input epochs: the ones in the mean
+
+    @property
+    def n_rejected(self) -> int:
+        return self.n_epochs - self.n_used
+
+
+def average_spp_positions(time_s, position_ecef_m, covariance_ecef_m2, valid=None, *, block_s: float = 300.0,
+                          reject_chi2: float = CHI2_3DOF_P999, max_iterations: int = 20) -> AveragedPosition | None:
+    """Weighted mean of per-epoch positions (E, 3) with their covariances (E, 3, 3), robust to outliers.
+
+    Weights are the inverse covariances. Outliers: starting from the component-wise median, an epoch whose
+    squared Mahalanobis distance from the current mean exceeds ``reject_chi2`` (chi-square, 3 degrees of
+    freedom, 99.9 %) times the variance factor is dropped, the factor being the median distance over all
+    epochs divided by the chi-square median (the SPP covariances are formal: their scale is not trusted);
+    mean and test are iterated until the kept set no longer changes. None when no epoch is usable."""
+    t = np.asarray(time_s, dtype=float).reshape(-1)
+    p = np.asarray(position_ecef_m, dtype=float).reshape(-1, 3)
+    c = np.asarray(covariance_ecef_m2, dtype=float).reshape(-1, 3, 3)
+    ok = np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(c.reshape(len(c), 9)), axis=1) & np.isfinite(t)
+    if valid is not None:
+        ok &= np.asarray(valid, dtype=bool).reshape(-1)
+    c_sym = 0.5 * (c + np.swapaxes(c, 1, 2))
+    ok[ok] &= np.linalg.eigvalsh(c_sym[ok]).min(axis=1) > 0.0
+    if not ok.any():
+        return None
+    ok_index = np.flatnonzero(ok)
+    t, p, c = t[ok], p[ok], c_sym[ok]
+    n = len(p)
+    w = np.linalg.inv(c)
+    center = np.median(p, axis=0)
+    keep = np.ones(n, dtype=bool)
+
+    def weighted_mean(sel):
+        normal = w[sel].sum(axis=0)
+        return np.linalg.solve(normal, np.einsum("eij,ej->i", w[sel], p[sel])), normal
+
+    scale = 1.0
+    normal = w.sum(axis=0)
+    for _ in range(max_iterations):
+        d = p - center
+        q = np.einsum("ei,eij,ej->e", d, w, d)
+        scale = max(float(np.median(q)) / CHI2_3DOF_MEDIAN, 1e-12)
+        new = q <= reject_chi2 * scale
+        if not new.any():
+            new = q <= np.min(q)
+        new_center, normal = weighted_mean(new)
+        done = np.array_equal(new, keep) and np.linalg.norm(new_center - center) < 1e-6
+        keep, center = new, new_center
+        if done:
+            break
+    lat, lon, _ = ecef_to_geodetic(center)
+    rot = ecef_to_enu_rotation(lat, lon)
+    enu = (p[keep] - center) @ rot.T
+    n_used = int(keep.sum())
+    formal = np.sqrt(np.diag(rot @ np.linalg.inv(normal) @ rot.T))
+    if n_used >= 2:
+        sample_cov = enu.T @ enu / (n_used - 1)
+    else:
+        sample_cov = rot @ c[keep][0] @ rot.T
+    scatter = np.sqrt(np.diag(sample_cov))
+    t_kept = t[keep]
+    blocks = np.unique(np.floor((t_kept - t_kept.min()) / block_s))
+    n_eff = max(1, min(n_used, len(blocks)))
+    mean_cov_enu = sample_cov / n_eff
+    sigma_mean = np.sqrt(np.diag(mean_cov_enu))
+    used = np.zeros(len(ok), dtype=bool)
+    used[ok_index[keep]] = True
+    boost = np.maximum(formal / np.maximum(sigma_mean, 1e-12), 1.0)   # never below the formal sigma
+    mean_cov_enu = mean_cov_enu * np.outer(boost, boost)
+    return AveragedPosition(
+        position_ecef_m=center, covariance_ecef_m2=rot.T @ mean_cov_enu @ rot,
+        sigma_mean_enu_m=np.sqrt(np.diag(mean_cov_enu)), scatter_enu_m=scatter, formal_sigma_mean_enu_m=formal,
+        n_epochs=n, n_used=n_used, n_independent=n_eff, block_s=float(block_s),
+        span_s=float(t_kept.max() - t_kept.min()), variance_factor=scale, used=used)

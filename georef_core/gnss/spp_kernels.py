@@ -63,6 +63,12 @@ def spp_epoch(t, code, used, sat_pos, sat_clock_m, sat_var, sys_col, sys_fact2, 
             clock_seen[:] = False
             n_obs = 0
             for s in range(n_s):
+                if not used[s]:
+                    # an unusable satellite's position is zeroed: from a receiver not yet located (also at
+                    # the Earth's centre) its range would be 0
+                    mask[s] = False
+                    v[s] = 0.0
+                    continue
                 dx_, dy_, dz_ = sat_pos[s, 0] - x[0], sat_pos[s, 1] - x[1], sat_pos[s, 2] - x[2]
                 r = np.sqrt(dx_ * dx_ + dy_ * dy_ + dz_ * dz_)
                 los[0], los[1], los[2] = dx_ / r, dy_ / r, dz_ / r

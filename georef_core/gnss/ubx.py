@@ -9,7 +9,16 @@
   The loss-of-lock indicator follows RTKLIB demo5 ``convbin`` (so a RINEX file converted from the
   same log carries the same flags), plus a lock-time-versus-gap test (see ``_loss_of_lock``).
 * ``navigation`` (``NavigationData``) from UBX-RXM-SFRBX (0x02 0x13), see ubx_nav_decode.py.
-* ``event_gps_time_s``: time marks from UBX-TIM-TM2 (0x0D 0x03), e.g. camera triggers.
+* ``event_gps_time_s``: time marks from UBX-TIM-TM2 (0x0D 0x03), e.g. camera triggers. By default the
+  FALLING edge of the EXTINT signal marks the event: a camera hot-shoe (X-sync) contact closes to ground
+  when the shutter is open, pulling the line low, so the falling edge is the leading edge of the exposure
+  pulse; RTKLIB demo5 ``convbin`` writes the same edge as RINEX event epochs (flag 5), so a log and its
+  RINEX give identical event times. ``event_edge="rising"`` is for an active-high trigger (e.g. an
+  autopilot or opto-coupler output). Times in the UTC time base (TIM-TM2 flags timeBase = 2, as in the
+  M8P walk log) get the GPS-UTC leap seconds added, as convbin does; both edges are kept in the ``UbxLog``.
+* ``observations.header.approx_position_ecef_m``: the median of the receiver's own 3D fixes (NAV-SOL,
+  NAV-POSECEF, NAV-PVT), marked ``approx_position_source = "receiver-fixes"``: metre-level (or, for a base
+  in survey-in / fixed mode, the receiver's survey-in mean), never treated as a surveyed position.
 
 Frame synchronisation works on the whole buffer with numpy: every ``B5 62`` candidate gets its
 Fletcher checksum from running sums, frames that pass are taken in order, anything else (NMEA,
@@ -130,8 +139,9 @@ class UbxLog:
 
     observations: RINEX-like arrays of every raw measurement epoch (event_gps_time_s copied in).
     navigation: ephemerides and ionosphere parameters from RXM-SFRBX (empty when the log has none).
-    event_gps_time_s: TIM-TM2 time marks of the chosen edge (gps_time_s, sorted); the rising and
-        falling edges are both kept, with the EXTINT channel and the receiver's accuracy estimate (s).
+    event_gps_time_s: TIM-TM2 time marks of the chosen edge (gps_time_s, sorted; default the falling edge,
+        as convbin); the rising and falling edges are both kept, with the EXTINT channel and the
+        receiver's accuracy estimate (s) of the chosen edge.
     warnings: human-readable problems (checksum failures, truncated log, parity errors, ...).
     message_counts, bytes_total, bytes_skipped, checksum_errors, nav_stats: decoding statistics.
     """
@@ -139,7 +149,7 @@ class UbxLog:
     source_path: str
     observations: RawObservations
     navigation: NavigationData
-    event_gps_time_s: np.ndarray                 # (N,) time marks of the chosen edge (default rising)
+    event_gps_time_s: np.ndarray                 # (N,) time marks of the chosen edge (default falling)
     warnings: list[str] = field(default_factory=list)
     event_rising_gps_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     event_falling_gps_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -198,7 +208,10 @@ def find_ubx_frames(data: bytes) -> UbxFrames:
     last_end = int(end[good][-1]) if len(good) else 0
     # candidates outside accepted frames that failed: corrupt / interleaved frames (or chance B5 62)
     k = np.searchsorted(starts, cand, side="right") - 1
-    inside = (k >= 0) & (cand < end[good][np.maximum(k, 0)])
+    if len(good):
+        inside = (k >= 0) & (cand < end[good][np.maximum(k, 0)])
+    else:                                   # sync bytes but no valid frame at all
+        inside = np.zeros(len(cand), dtype=bool)
     failed = ~ok & ~inside & known
     n_ck = int(np.count_nonzero(failed & fits))
     # the log ends inside a frame: a plausible frame start after the last good frame runs past the end
@@ -208,12 +221,13 @@ def find_ubx_frames(data: bytes) -> UbxFrames:
 
 
 # ============================================================================ public API
-def read_ubx(path, *, event_edge: Literal["rising", "falling"] = "rising",
+def read_ubx(path, *, event_edge: Literal["rising", "falling"] = "falling",
              max_cp_stdev_index: int | None = None, slip_on_lock_gap: bool = True) -> UbxLog:
     """Decode a u-blox UBX log (plain, .gz or .Z).
 
-    event_edge: which TIM-TM2 edge gives ``event_gps_time_s`` (both are kept in the log);
-        RTKLIB convbin writes the falling edge as RINEX event epochs.
+    event_edge: which TIM-TM2 edge gives ``event_gps_time_s`` (both are kept in the log). Default
+        "falling": the leading edge of a hot-shoe (active-low, contact to ground) exposure pulse, and the
+        edge RTKLIB convbin writes as RINEX event epochs; "rising" for an active-high trigger signal.
     max_cp_stdev_index: carrier phase with a larger cpStdev index (0.004 cycles per step) is
         dropped; None = RTKLIB demo5 defaults (5 for u-blox 8, 14 when u-blox 9 signals are seen).
     slip_on_lock_gap: also flag a slip when the lock time is shorter than the time since the
@@ -227,7 +241,7 @@ def read_ubx(path, *, event_edge: Literal["rising", "falling"] = "rising",
 
 
 def decode_ubx_bytes(data: bytes, source_path: str = "<bytes>", *,
-                     event_edge: Literal["rising", "falling"] = "rising",
+                     event_edge: Literal["rising", "falling"] = "falling",
                      max_cp_stdev_index: int | None = None, slip_on_lock_gap: bool = True) -> UbxLog:
     """``read_ubx`` on a buffer already in memory (``source_path`` only names it in messages)."""
     if event_edge not in ("rising", "falling"):
@@ -599,7 +613,12 @@ def _leap_seconds(rawx: _Measurements | None, ref_time: np.ndarray) -> int:
 
 def _decode_tm2(data: bytes, pos: np.ndarray, length: np.ndarray, leap: int,
                 warnings: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """TIM-TM2 time marks: per edge, (gps_time_s, channel, accuracy_s), each edge reported once."""
+    """TIM-TM2 time marks: per edge, (gps_time_s, channel, accuracy_s), each edge reported once.
+
+    An edge's time is wn * 604800 + towMs * 1e-3 + towSubMs * 1e-9 (towSubMs is in ns); a message reports
+    the latest rising and falling edge and flags which of them is new. With timeBase = 2 (UTC) the
+    GPS-UTC leap seconds are added (RTKLIB demo5 convbin: utc2gpst); timeBase 1 (GNSS) is taken as GPS
+    time. Marks without a valid time (flags bit 6) are dropped with a warning."""
     out: dict[str, list[tuple[float, int, float]]] = {"rising": [], "falling": []}
     n_invalid = 0
     for p0, ln in zip(pos.tolist(), length.tolist()):
@@ -634,7 +653,9 @@ def _decode_tm2(data: bytes, pos: np.ndarray, length: np.ndarray, leap: int,
 
 
 def _receiver_header(data: bytes, frames: UbxFrames, meas: _Measurements | None) -> ReceiverHeader:
-    """Receiver type (MON-VER) and an approximate position (median of the receiver's own 3D fixes)."""
+    """Receiver type (MON-VER) and an approximate position: the median of the receiver's own 3D fixes
+    (source "receiver-fixes": its navigation solution, or for a base in survey-in / fixed mode the position
+    it reports, which is the survey-in mean; metre-level, not a surveyed header position)."""
     header = ReceiverHeader(rinex_version=None)
     ver = frames.start[frames.msg_id == ID_MON_VER]
     if len(ver):
@@ -664,4 +685,5 @@ def _receiver_header(data: bytes, frames: UbxFrames, meas: _Measurements | None)
             pts.append(tuple(geodetic_to_ecef_m(math.radians(lat), math.radians(lon), h).tolist()))
     if pts:
         header.approx_position_ecef_m = np.median(np.array(pts), axis=0)
+        header.approx_position_source = "receiver-fixes"
     return header

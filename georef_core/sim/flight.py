@@ -27,7 +27,9 @@ straight lines, and are reported by :meth:`CameraEvent` consumers if needed).
 
 Attitude model
 --------------
-The camera is rigidly mounted on the body, pointing at nadir, image top towards the nose:
+With ``camera_mount="gimbal"`` the camera stays level with the heading (a stabilised gimbal, as on
+DJI RTK aircraft) and only the body tilts; the antenna -> camera vector then depends on the attitude
+(``antenna_to_camera_enu``). Otherwise the camera is rigidly mounted on the body, pointing at nadir, image top towards the nose:
 ``R_cam_to_body = [[0,-1,0],[1,0,0],[0,0,1]]`` with the body frame FRD (x forward, y right, z down).
 The body's up axis follows the thrust a multirotor needs: ``a + g e_up + drag (v - wind)``, so it
 pitches into its acceleration and air speed and rolls against a cross wind; its heading follows the
@@ -86,6 +88,14 @@ class FlightOptions:
     yaw_noise_deg: float = 0.6
     position_noise_m: float = 0.15  # RMS of the smooth random deviation from the plan (per horizontal axis)
     lever_arm_cam_m: tuple[float, float, float] = (0.0123, -0.1047, 0.2156)
+    # "fixed": the camera is bolted to the body (lever_arm_cam_m applies); "gimbal": a stabilised camera
+    # (DJI RTK aircraft) that stays at nadir with the heading whatever the body's roll and pitch: the
+    # antenna -> camera vector is then R_body @ antenna_to_gimbal_body_m + R_cam @ gimbal_to_camera_cam_m,
+    # and changes with the attitude (what a DJI Timestamp.MRK logs per exposure)
+    camera_mount: str = "fixed"
+    antenna_to_gimbal_body_m: tuple[float, float, float] = (0.07, 0.0, 0.16)   # body FRD
+    gimbal_to_camera_cam_m: tuple[float, float, float] = (0.0, 0.0, 0.03)      # camera frame
+    gimbal_jitter_deg: float = 0.05                                            # RMS stabilisation error
     trigger_delay_s: float = 0.038  # exposure time = trigger (GNSS time mark) + delay
     # UTC at the first trajectory sample; the shipped navigation file covers 08:00-09:15 GPST on 2024-06-24
     start_utc: str = "2024-06-24T08:10:00"
@@ -247,7 +257,8 @@ def _body_from_up_yaw(up: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 class Trajectory:
     """True antenna-phase-centre trajectory and camera attitude, continuous in ``gps_time_s``."""
 
-    def __init__(self, frame: SiteFrame, knot_times_gps_s, positions_enu, R_cam_to_enu, info: dict | None = None):
+    def __init__(self, frame: SiteFrame, knot_times_gps_s, positions_enu, R_cam_to_enu, info: dict | None = None,
+                 R_body_to_enu=None):
         self.frame = frame
         self.knot_times = np.asarray(knot_times_gps_s, dtype=float)
         self.t0 = float(self.knot_times[0])
@@ -258,6 +269,9 @@ class Trajectory:
         self._vel = self._pos.derivative(1)
         self._acc = self._pos.derivative(2)
         self._rot = RotationSpline(tr, Rotation.from_matrix(self.knot_R_cam_to_enu))
+        # a gimbal camera: the body has its own attitude (None: the camera is fixed to the body)
+        self.knot_R_body_to_enu = None if R_body_to_enu is None else np.asarray(R_body_to_enu, dtype=float)
+        self._body_rot = None if R_body_to_enu is None else RotationSpline(tr, Rotation.from_matrix(R_body_to_enu))
         self.info = dict(info or {})
 
     # ---- time span ---------------------------------------------------------------------------------
@@ -304,6 +318,8 @@ class Trajectory:
         return self.frame.R_enu_to_ecef @ self.R_cam_to_enu(t)
 
     def R_body_to_enu(self, t) -> np.ndarray:
+        if self._body_rot is not None:
+            return self._body_rot(self._rel(t)).as_matrix()
         return self.R_cam_to_enu(t) @ R_CAM_TO_BODY.T
 
     def angular_rate_enu(self, t) -> np.ndarray:
@@ -484,14 +500,23 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
     dpitch = np.radians(_eval_sin(_sinusoids(rng, 6, 0.05, 0.8, o.attitude_noise_deg), tk)) * envk
     pert_r = Rotation.from_euler("xy", np.stack([droll, dpitch], -1)).as_matrix()  # about body x then y
     rb = rb @ pert_r
-    rc = rb @ R_CAM_TO_BODY
+    if o.camera_mount == "gimbal":
+        # stabilised: level with the heading, the gimbal's small residual error only
+        level = _body_from_up_yaw(np.broadcast_to(ez, up.shape), yawk + dyaw)
+        jit = np.radians(_eval_sin(_sinusoids(rng, 4, 0.1, 1.0, o.gimbal_jitter_deg), tk))
+        jit2 = np.radians(_eval_sin(_sinusoids(rng, 4, 0.1, 1.0, o.gimbal_jitter_deg), tk))
+        rc = level @ R_CAM_TO_BODY @ Rotation.from_euler("xy", np.stack([jit, jit2], -1)).as_matrix()
+    elif o.camera_mount == "fixed":
+        rc = rb @ R_CAM_TO_BODY
+    else:
+        raise ValueError(f"camera_mount must be 'fixed' or 'gimbal', not {o.camera_mount!r}")
 
     info = {"takeoff_gps_time_s": None, "landing_gps_time_s": None}
     air_idx = np.nonzero(envk > 0)[0]
     if len(air_idx):
         info["takeoff_gps_time_s"] = float(t_gps[max(air_idx[0] - 1, 0)])
         info["landing_gps_time_s"] = float(t_gps[min(air_idx[-1] + 1, len(t_gps) - 1)])
-    traj = Trajectory(frame, t_gps, pk, rc, info)
+    traj = Trajectory(frame, t_gps, pk, rc, info, R_body_to_enu=rb if o.camera_mount == "gimbal" else None)
 
     # ---- camera events: distance-triggered along each line ------------------------------------------
     events: list[CameraEvent] = []
@@ -522,6 +547,16 @@ def simulate_flight(site, camera: CameraModel, o: FlightOptions, seed: int,
         e.index = i
         e.name = f"IMG_{i + 1:04d}.JPG"
     return traj, events, plan
+
+
+def antenna_to_camera_enu(traj: Trajectory, t, o: FlightOptions) -> np.ndarray:
+    """The vector from the antenna phase centre to the camera centre at ``t`` (ENU, m): R_cam @ lever arm
+    for a fixed camera; for a gimbal camera the body part of the mount turns with the body and the
+    gimbal part with the camera (``FlightOptions.camera_mount``)."""
+    if o.camera_mount == "gimbal":
+        return (traj.R_body_to_enu(t) @ np.asarray(o.antenna_to_gimbal_body_m, dtype=float)
+                + traj.R_cam_to_enu(t) @ np.asarray(o.gimbal_to_camera_cam_m, dtype=float))
+    return traj.R_cam_to_enu(t) @ np.asarray(o.lever_arm_cam_m, dtype=float)
 
 
 def _closest_time(tt, ptt, p):

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .camera import CameraModel, CameraOptions
-from .flight import CameraEvent, FlightOptions, FlightPlan, Trajectory, gps_time_to_utc, simulate_flight
+from .flight import (CameraEvent, FlightOptions, FlightPlan, Trajectory, antenna_to_camera_enu, gps_time_to_utc,
+                     simulate_flight)
 from .render import Renderer, RenderOptions, TerrainMesh, exif_bytes, write_jpeg
 from .site import Site, SiteOptions, build_site
 from .survey_gnss import GnssOptions, SurveyGnssResult, simulate_survey_gnss
@@ -235,7 +236,6 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
         img_dir = out / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
         renderer = Renderer(mesh, texture, camera, o.render, seed=seed)
-        lever = np.asarray(o.flight.lever_arm_cam_m, dtype=float)
         frame = site.frame
 
         # poses and EXIF GPS tags first, in this thread (pyproj transformers are not shared across threads)
@@ -244,7 +244,7 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
         for e in events:
             te = e.exposure_gps_time_s
             R = traj.R_cam_to_enu(te)
-            c = traj.position_enu(te) + R @ lever
+            c = traj.position_enu(te) + antenna_to_camera_enu(traj, te, o.flight)
             gps = None
             if o.exif_gps_noise_m is not None:
                 sig = np.array([o.exif_gps_noise_m[0]] * 2 + [o.exif_gps_noise_m[1]])
@@ -285,7 +285,7 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 extra={"simulation_options": asdict(o), "rendered_bounds_site_m": list(bounds)})
     write_gcp_points(out / "gcp", site, o.gcp_noise_m, seed)
     write_gcp_image_measurements(out / "gcp" / "gcp_list.txt", site, traj, events, camera, o.flight.lever_arm_cam_m,
-                                 o.gcp_click_noise_px, seed)
+                                 o.gcp_click_noise_px, seed, flight=o.flight)
     _write_survey_json(out, site, traj, gnss)
     write_events_csv(out / "events.csv", events)
     _write_readmes(out, site, len(events), o.flight, gnss)

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from ..gnss.gnss_time import gps_time_s_to_week_tow
-from .flight import R_CAM_TO_BODY, CameraEvent, FlightOptions, FlightPlan, Trajectory, gps_time_to_utc
+from .flight import (R_CAM_TO_BODY, CameraEvent, FlightOptions, FlightPlan, Trajectory, antenna_to_camera_enu,
+                     gps_time_to_utc)
 
 LEVER_DELAY_CONVENTION = (
     "lever_arm_cam_m: vector from the GNSS antenna phase centre to the camera projection centre, in the camera "
@@ -71,21 +72,30 @@ def write_json(path, obj) -> None:
     Path(path).write_text(_format_json(_jsonable(obj)) + "\n")
 
 
-def camera_poses(trajectory: Trajectory, events: list[CameraEvent], lever_arm_cam_m, delay_s: float) -> list[dict]:
-    """Per-image truth poses (see module doc)."""
+def _antenna_to_camera_enu(trajectory: Trajectory, t: float, lever: np.ndarray, flight: FlightOptions | None):
+    if flight is not None and flight.camera_mount == "gimbal":
+        return antenna_to_camera_enu(trajectory, t, flight)
+    return trajectory.R_cam_to_enu(t) @ lever
+
+
+def camera_poses(trajectory: Trajectory, events: list[CameraEvent], lever_arm_cam_m, delay_s: float,
+                 flight: FlightOptions | None = None) -> list[dict]:
+    """Per-image truth poses (see module doc); with a gimbal ``flight`` the antenna -> camera vector of each
+    exposure is the mount's (``flight.antenna_to_camera_enu``), recorded as ``antenna_to_camera_ned_m``."""
     frame = trajectory.frame
     lever = np.asarray(lever_arm_cam_m, dtype=float)
     out = []
     for e in events:
         te, tt = e.exposure_gps_time_s, e.trigger_gps_time_s
         R = trajectory.R_cam_to_enu(te)
-        c_enu = trajectory.position_enu(te) + R @ lever
+        offset = _antenna_to_camera_enu(trajectory, te, lever, flight)
+        c_enu = trajectory.position_enu(te) + offset
         c_ecef = frame.enu_to_ecef(c_enu)
         c_grid = frame.ecef_to_grid(c_ecef)
         p_trig = trajectory.position_ecef(tt)
         v_trig = trajectory.velocity_ecef(tt)
         R_ecef = frame.R_enu_to_ecef @ R
-        model = p_trig + R_ecef @ lever + v_trig * delay_s
+        model = p_trig + frame.R_enu_to_ecef @ offset + v_trig * delay_s
         R_grid = frame.R_enu_to_grid_axes(float(c_grid[0]), float(c_grid[1]), float(c_grid[2])) @ R
         utc = gps_time_to_utc(te)
         week, tow = gps_time_s_to_week_tow(tt)
@@ -101,6 +111,7 @@ def camera_poses(trajectory: Trajectory, events: list[CameraEvent], lever_arm_ca
             "antenna_ecef_at_trigger_m": p_trig, "antenna_velocity_ecef_at_trigger_m_s": v_trig,
             "antenna_ecef_at_exposure_m": trajectory.position_ecef(te),
             "first_order_model_error_m": float(np.linalg.norm(model - c_ecef)),
+            "antenna_to_camera_ned_m": np.array([offset[1], offset[0], -offset[2]]),
         })
     return out
 
@@ -216,7 +227,7 @@ def write_truth(truth_dir, site, plan: FlightPlan, trajectory: Trajectory, event
     d = Path(truth_dir)
     d.mkdir(parents=True, exist_ok=True)
     trajectory.to_csv(d / "trajectory.csv")
-    poses = camera_poses(trajectory, events, flight.lever_arm_cam_m, flight.trigger_delay_s)
+    poses = camera_poses(trajectory, events, flight.lever_arm_cam_m, flight.trigger_delay_s, flight)
     write_json(d / "camera_poses.json", {
         "frames": {
             "ecef": "WGS84 ECEF (EPSG:4978), metres",
@@ -257,7 +268,8 @@ def write_truth(truth_dir, site, plan: FlightPlan, trajectory: Trajectory, event
 
 
 def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: list[CameraEvent], camera,
-                                 lever_arm_cam_m, noise_px: float = 0.3, seed: int = 0, border_px: float = 8.0) -> int:
+                                 lever_arm_cam_m, noise_px: float = 0.3, seed: int = 0, border_px: float = 8.0,
+                                 flight: FlightOptions | None = None) -> int:
     """``gcp/gcp_list.txt``: where a surveyor would have clicked each target in each image, in OpenDroneMap's
     format (first line the CRS, then ``E N h x y image name``; pixel (0, 0) is the centre of the top-left
     pixel). Positions are the true projections (through a rolling shutter where the camera has one) plus ``noise_px`` (sigma per axis) of clicking noise;
@@ -273,7 +285,7 @@ def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: lis
     for e in events:
         te = e.exposure_gps_time_s
         R = trajectory.R_cam_to_enu(te)
-        c = trajectory.position_enu(te) + R @ lever
+        c = trajectory.position_enu(te) + _antenna_to_camera_enu(trajectory, te, lever, flight)
         px = camera.project_world_moving(t_enu, c, R, trajectory.velocity_enu(te))
         for t, uv in zip(targets, px):
             if not np.all(np.isfinite(uv)):

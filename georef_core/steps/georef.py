@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -197,6 +198,8 @@ class ImageGnss:
     status: np.ndarray
     source: str
     warnings: list[str] = field(default_factory=list)
+    cov_ecef_m2: np.ndarray | None = None     # (N, 3, 3) full covariance where known (else sd_ecef_m, diagonal)
+    from_photos: bool = False                 # positions read from the photos (XMP RTK / EXIF GPS), not PPK
 
 
 def _read_ppk_events(path: Path) -> dict[str, np.ndarray]:
@@ -219,7 +222,7 @@ def _survey_events(path: Path) -> dict[str, float]:
     return {r["image"]: float(r[key]) for r in rows}
 
 
-def exif_trigger_times(survey_dir: Path, image_names: list[str], offset_s: float) -> tuple[dict[str, float], list[str]]:
+def exif_trigger_times(image_dir: Path, image_names: list[str], offset_s: float) -> tuple[dict[str, float], list[str]]:
     """image name -> trigger GPS time from its EXIF time plus a clock offset (see GeorefOptions)."""
     import datetime as dt
 
@@ -228,14 +231,14 @@ def exif_trigger_times(survey_dir: Path, image_names: list[str], offset_s: float
 
     times, warnings = {}, []
     for name in image_names:
-        t = read_image_info(survey_dir / "images" / name, warn=False).time_original
+        t = read_image_info(image_dir / name, warn=False).time_original
         if t is None:
             warnings.append(f"{name}: no EXIF DateTimeOriginal; the image is used without GNSS")
             continue
         utc = t.astimezone(dt.timezone.utc).replace(tzinfo=None) if t.tzinfo else t
         times[name] = utc_datetime_to_gps_time_s(utc + dt.timedelta(seconds=float(offset_s)))
     if not times:
-        raise InputFileError(survey_dir / "images", "no image has an EXIF time: trigger times cannot come from EXIF")
+        raise InputFileError(image_dir, "no image has an EXIF time: trigger times cannot come from EXIF")
     return times, warnings
 
 
@@ -256,14 +259,15 @@ def write_trigger_csv(path: Path, times: dict[str, float]) -> None:
             w.writerow([name, f"{t:.6f}"])
 
 
-def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_csv: Path,
-                           times: dict[str, float] | None = None, times_source: str = "") -> ImageGnss:
+def match_images_to_events(image_dir: Path, image_names: list[str], ppk_events_csv: Path,
+                           times: dict[str, float] | None = None, times_source: str = "",
+                           ev_csv: Path | None = None) -> ImageGnss:
     """Tie images to the PPK states at their triggers: ``times`` (image -> trigger GPS time) when given,
-    else the survey's events.csv, else the rover's event records in the order of the images' EXIF times."""
+    else the survey's trigger table ``ev_csv`` (events.csv, or the one made from a DJI MRK), else the
+    rover's event records in the order of the images' EXIF times."""
     ev = _read_ppk_events(ppk_events_csv)
     warnings: list[str] = []
-    ev_csv = survey_dir / "events.csv"
-    if times is not None or ev_csv.is_file():
+    if times is not None or (ev_csv is not None and ev_csv.is_file()):
         if times is None:
             times = _survey_events(ev_csv)
             times_source = ev_csv.name
@@ -284,11 +288,11 @@ def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_
 
         infos = []
         for name in image_names:
-            info = read_image_info(survey_dir / "images" / name)
+            info = read_image_info(image_dir / name)
             t = info.time_original
             infos.append(((t.timestamp() if t.tzinfo else t.replace(tzinfo=None).timestamp()) if t else None, name))
         if len(ev["t"]) != len(image_names):
-            raise InputFileError(survey_dir / "images", f"{len(image_names)} images but {len(ev['t'])} camera events in "
+            raise InputFileError(image_dir, f"{len(image_names)} images but {len(ev['t'])} camera events in "
                                  f"the rover's log and no events.csv to say which is which; give events.csv "
                                  f"(image, trigger_gps_time_s)")
         if any(t is None for t, _ in infos):
@@ -301,6 +305,59 @@ def match_images_to_events(survey_dir: Path, image_names: list[str], ppk_events_
     idx = np.asarray(idx, int)
     return ImageGnss(names, ev["t"][idx], ev["pos"][idx], ev["vel"][idx], ev["sd"][idx], ev["status"][idx], source,
                      warnings)
+
+
+def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, opts: GeorefOptions,
+                         warnings: list) -> ImageGnss | None:
+    """Camera positions from the photos themselves (DJI RTK XMP, else EXIF GPS) when the survey has no raw
+    GNSS: the camera centres are observed directly, so the lever arm is held at zero and no delay is
+    estimated (photo_positions.py)."""
+    from ..photo.photo_positions import read_photo_positions
+
+    pp = read_photo_positions(image_dir, image_names, str(meta.get("photo_heights", "ellipsoidal")))
+    if pp is None:
+        return None
+    warnings += pp.warnings
+    n = len(pp.names)
+    sd = np.sqrt(np.abs(np.einsum("kii->ki", pp.cov_ecef_m2)))
+    gnss = ImageGnss(pp.names, pp.time_gps_s, pp.position_ecef_m, np.zeros((n, 3)), sd, pp.status, pp.source,
+                     cov_ecef_m2=pp.cov_ecef_m2, from_photos=True)
+    if opts.lever_arm_cam_m is None:
+        opts.lever_arm_cam_m = (0.0, 0.0, 0.0)
+        opts.estimate_lever_arm = False
+    opts.estimate_delay = False
+    opts.delay_s = 0.0
+    if pp.kind == "exif-gps":
+        warnings.append("camera positions from the photos' navigation-grade EXIF GPS (metre level): the survey's "
+                        "absolute accuracy rests on its control points, not on these positions")
+    return gnss
+
+
+def _apply_camera_offsets(gnss: ImageGnss, offsets_ned_m: dict[str, np.ndarray], opts: GeorefOptions,
+                          warnings: list) -> None:
+    """Move each antenna position at an exposure to the camera centre with the aircraft's own per-exposure
+    antenna -> camera offset (a DJI MRK's N/E/V, already rotated by the aircraft and gimbal attitude), and
+    hold the lever arm at zero: a gimbal camera has no fixed lever arm in the body frame to estimate."""
+    from ..gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic
+
+    moved = 0
+    for k, name in enumerate(gnss.names):
+        d = offsets_ned_m.get(name)
+        if d is None or not np.all(np.isfinite(gnss.position_ecef_m[k])):
+            continue
+        lat, lon, _ = ecef_to_geodetic(gnss.position_ecef_m[k])
+        enu = np.array([d[1], d[0], -d[2]])
+        gnss.position_ecef_m[k] = gnss.position_ecef_m[k] + ecef_to_enu_rotation(lat, lon).T @ enu
+        moved += 1
+    gnss.source += "; camera centres from the MRK's per-exposure antenna-to-camera offsets"
+    if opts.lever_arm_cam_m is None:
+        opts.lever_arm_cam_m = (0.0, 0.0, 0.0)
+        opts.estimate_lever_arm = False
+        warnings.append(f"{moved} camera centre(s) placed with the aircraft's per-exposure antenna-to-camera offsets "
+                        "(DJI MRK, gimbal camera): no lever arm estimated")
+    else:
+        warnings.append("a lever arm was given although the MRK offsets already place the camera centres: the given "
+                        "lever arm is applied on top of them")
 
 
 # ------------------------------------------------------------------------------------------- roles
@@ -364,7 +421,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if isinstance(options, dict):
         opts = georef_options_from_dict(options)  # validated there
     else:
-        opts = options or GeorefOptions()
+        opts = replace(options) if options is not None else GeorefOptions()   # the run's own copy
         validate_shutter_options(opts)
     if opts.mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}")
@@ -374,8 +431,13 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     warnings: list[str] = []
     report = progress or (lambda *a: None)
     meta = read_survey_json(survey_dir)
-    image_names = _image_names(survey_dir / "images")
-    shutter = _shutter_flag(survey_dir / "images" / image_names[0], opts.rolling_shutter, opts.readout_s)
+    from .survey_inputs import read_camera_offsets, survey_inputs
+
+    found = survey_inputs(survey_dir, out)
+    warnings += found.warnings
+    image_dir = found.image_dir
+    image_names = _image_names(image_dir)
+    shutter = _shutter_flag(image_dir / image_names[0], opts.rolling_shutter, opts.readout_s)
 
     # ---- control points
     gcp_dir = survey_dir / "gcp"
@@ -389,7 +451,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if opts.refine_targets and control.measurements:
         from ..adjustment.target_refinement import refine_measurements
 
-        n_ref, n_keep = refine_measurements(survey_dir / "images", control.measurements)
+        n_ref, n_keep = refine_measurements(image_dir, control.measurements)
         target_refinement = {"refined": n_ref, "kept_as_clicked": n_keep}
     missing_imgs = sorted({m.image for m in control.measurements} - set(image_names))
     if missing_imgs:
@@ -398,7 +460,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     # ---- GNSS
     t0 = time.perf_counter()
     gnss = None
-    if (survey_dir / "rover").is_dir():
+    if found.rover_files:
         report("gnss", 0, 1)
         ev_csv = out / "ppk" / "events.csv"
         times, times_source = None, ""
@@ -406,7 +468,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         trig = out / "exif_triggers.csv"
         previous_triggers = trig.read_text() if trig.is_file() else None
         if opts.exif_time_offset_s is not None:
-            times, w = exif_trigger_times(survey_dir, image_names, opts.exif_time_offset_s)
+            times, w = exif_trigger_times(image_dir, image_names, opts.exif_time_offset_s)
             warnings += w
             write_trigger_csv(trig, times)
             gnss_options["events_csv"] = str(trig)
@@ -418,11 +480,15 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         if not (opts.reuse and ev_csv.is_file() and same_triggers):
             run_survey_gnss(survey_dir, out, gnss_options)
         if ev_csv.is_file():
-            gnss = match_images_to_events(survey_dir, image_names, ev_csv, times, times_source)
+            gnss = match_images_to_events(image_dir, image_names, ev_csv, times, times_source, found.events_csv)
             warnings += gnss.warnings
+            if found.camera_offsets_csv is not None and times is None:
+                _apply_camera_offsets(gnss, read_camera_offsets(found.camera_offsets_csv), opts, warnings)
         else:
             warnings.append("the PPK solution has no camera events: images are not tied to GNSS positions")
         report("gnss", 1, 1)
+    if gnss is None and not found.rover_files:
+        gnss = _photo_position_gnss(image_dir, image_names, meta, opts, warnings)
     timings["gnss_s"] = time.perf_counter() - t0
     if opts.mode in ("joint", "similarity") and gnss is None:
         if opts.mode == "similarity":
@@ -436,7 +502,10 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if gnss is not None:
         enu = frame.ecef_to_enu(gnss.position_ecef_m)
         vel = gnss.velocity_ecef_m_s @ frame.R_ecef_to_enu.T
-        cov = np.einsum("ij,kj,lj->kil", frame.R_ecef_to_enu, gnss.sd_ecef_m ** 2, frame.R_ecef_to_enu)
+        if gnss.cov_ecef_m2 is not None:
+            cov = np.einsum("ij,kjm,lm->kil", frame.R_ecef_to_enu, gnss.cov_ecef_m2, frame.R_ecef_to_enu)
+        else:
+            cov = np.einsum("ij,kj,lj->kil", frame.R_ecef_to_enu, gnss.sd_ecef_m ** 2, frame.R_ecef_to_enu)
         for k, name in enumerate(gnss.names):
             if gnss.status[k] == 0:
                 warnings.append(f"{name}: no PPK solution at its trigger; used without GNSS")
@@ -460,7 +529,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
 
             rec = colmap_api.read_model(sfm_dir / "sparse" / "0")
     if rec is None:
-        res = run_sfm(survey_dir / "images", sfm_dir, sfm_opts, progress=progress)
+        res = run_sfm(image_dir, sfm_dir, sfm_opts, progress=progress)
         rec = res.reconstruction
     timings["sfm_s"] = time.perf_counter() - t0
     if rec is None or rec.num_registered < 3:
@@ -476,12 +545,13 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     t0 = time.perf_counter()
     report("adjustment", 0, 1)
     result = _adjust(opts, frame, rec, control, gnss_enu, warnings, rolling=bool(shutter["rolling_shutter"]))
-    _shutter_outcome(shutter, result, opts, survey_dir / "images", warnings)
+    _shutter_outcome(shutter, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
 
     t0 = time.perf_counter()
-    summary = _write_outputs(out, survey_dir, opts, frame, rec, control, result, gnss, warnings)
+    summary = _write_outputs(out, image_dir, opts, frame, rec, control, result, gnss, warnings)
+    summary["inputs"] = found.summary()
     summary["target_refinement"] = target_refinement
     summary["rolling_shutter"] = shutter
     timings["outputs_s"] = time.perf_counter() - t0
@@ -858,7 +928,7 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
     return table
 
 
-def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
+def _write_outputs(out: Path, image_dir: Path, opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                    adj: _Adjusted, gnss, warnings: list) -> dict:
     from ..photo.oriented_images import OrientedCamera, OrientedImage, OrientedImages
 
@@ -866,7 +936,7 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
     model, params = cm.to_colmap(adj.intrinsics, adj.fisheye)
     w, h = next(iter(rec.cameras.values())).width, next(iter(rec.cameras.values())).height
     rolling = adj.camera_velocity_enu_m_s is not None  # the readout modelled: the dense step needs it too
-    oi = OrientedImages(frame=frame, image_dir=(survey_dir / "images").resolve(),
+    oi = OrientedImages(frame=frame, image_dir=Path(os.path.abspath(image_dir)),
                         cameras={1: OrientedCamera(model, w, h, params, adj.readout_s if rolling else 0.0)},
                         images=[OrientedImage(n, 1, adj.R_cam_to_enu[i], adj.centre_enu_m[i],
                                               np.sqrt(np.abs(np.diag(adj.centre_cov_enu_m2[i]))),
@@ -925,7 +995,7 @@ def _write_outputs(out: Path, survey_dir: Path, opts: GeorefOptions, frame: Proj
 
     summary = {
         "mode": opts.mode, "camera_model": opts.camera_model, "project_frame": frame.to_dict(),
-        "images": {"total": len(_image_names(survey_dir / "images")), "registered": len(adj.names),
+        "images": {"total": len(_image_names(image_dir)), "registered": len(adj.names),
                    "with_gnss": len(adj.gnss_rows)},
         "gnss_source": gnss.source if gnss is not None else None,
         "sfm": {"mean_reprojection_error_px": rec.mean_reprojection_error_px, "points": int(len(rec.points_xyz))},

@@ -28,7 +28,8 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
     parquet_path = Path(parquet_path) if parquet_path else out_pos.with_suffix(".parquet")
     write_parquet(parquet_path, sol, epsg)
     events = np.asarray(sol.event_time_s, dtype=float)
-    events_source = f"event records in {Path(rover_path).name}" if len(events) else None
+    rover_names = ", ".join(Path(p).name for p in ([rover_path] if isinstance(rover_path, (str, Path)) else rover_path))
+    events_source = f"event records in {rover_names}" if len(events) else None
     if events_csv and not (rover_events_first and len(events)):
         events = read_event_csv(events_csv)
         events_source = str(events_csv)
@@ -58,28 +59,22 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
 # the survey-folder form used by `georef georef` and the worker
 # --------------------------------------------------------------------------------------------------------
 
-def _files_of_kind(folder: Path, kinds: tuple[str, ...]) -> list[Path]:
-    from ..gnss.input_files import sniff_kind
-
-    if not folder.is_dir():
-        return []
-    out = []
-    for p in sorted(folder.iterdir()):
-        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() not in (".md", ".txt", ".json", ".csv"):
-            try:
-                if sniff_kind(p) in kinds:
-                    out.append(p)
-            except Exception:  # unreadable files are reported by the reader when they matter
-                continue
-    return out
-
-
 def _has_second_frequency(path: Path) -> bool:
-    """Whether a RINEX observation header lists phase on a second band (L2/L5/L7/L6); UBX: no."""
+    """Whether the receiver tracked phase on a second band (L2/L5/E5b/B2...): from a RINEX observation
+    header's list, or from the decoded signals of a UBX log or RTCM 3 stream (an F9P or a DJI aircraft
+    records two bands, an M8T one)."""
     from ..gnss.compressed_files import read_bytes
-    from ..gnss.input_files import sniff_kind
+    from ..gnss.input_files import load_observations, sniff_kind
 
-    if sniff_kind(path) != "rinex-obs":
+    kind = sniff_kind(path)
+    if kind in ("ubx", "rtcm3"):
+        from ..gnss.constants import RINEX_DIGIT_TO_BAND
+
+        raw = load_observations(path).observations
+        tracked = ~np.all(np.isnan(raw.values), axis=0)          # (S, K)
+        return any(c[0] == "L" and RINEX_DIGIT_TO_BAND.get(sat[0], {}).get(c[1], 0) >= 1 and tracked[s, k]
+                   for k, c in enumerate(raw.obs_codes) for s, sat in enumerate(raw.sat_ids))
+    if kind != "rinex-obs":
         return False
     head = read_bytes(path)[:200000].decode("latin-1", errors="replace")
     end = head.find("END OF HEADER")
@@ -123,18 +118,16 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     if unknown:
         raise ProcessingError(f"unknown GNSS settings: {', '.join(unknown)} (known: {', '.join(sorted(_SURVEY_GNSS_OPTIONS))})")
     meta = read_survey_json(survey_dir)
-    rovers = _files_of_kind(survey_dir / "rover", ("rinex-obs", "ubx"))
-    bases = _files_of_kind(survey_dir / "base", ("rinex-obs",))
-    navs = _files_of_kind(survey_dir / "nav", ("rinex-nav",))
+    from .survey_inputs import survey_inputs
+
+    found = survey_inputs(survey_dir, out_dir)
+    rovers, bases, navs = found.rover_files, found.base_files, found.nav_files
     if not rovers:
-        raise InputFileError(survey_dir / "rover", "no rover observation file (RINEX obs or u-blox UBX) found here")
-    if len(rovers) > 1:
-        raise InputFileError(survey_dir / "rover", f"{len(rovers)} rover observation files; one flight = one file "
-                                                   f"({', '.join(p.name for p in rovers)})")
+        where = "the DJI flight folders" if found.layout == "dji" else str(survey_dir / "rover")
+        raise InputFileError(survey_dir / "rover" if found.layout != "dji" else found.flights[0].folder,
+                             f"no rover observation file (RINEX obs, u-blox UBX or RTCM 3 raw log) found in {where}")
     if not bases:
-        raise InputFileError(survey_dir / "base", "no base-station RINEX observation file found here")
-    if not navs and sniff_ubx(rovers[0]) is False:
-        raise InputFileError(survey_dir / "nav", "no RINEX navigation file found here (and the rover log is not UBX)")
+        raise InputFileError(survey_dir / "base", "no base-station observation file (RINEX obs, UBX or RTCM 3) found here")
     if progress:
         progress("gnss", 0, 1)
     freq = opt.get("freq", "auto")
@@ -169,23 +162,28 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
         rtk.validate()
     except ValueError as exc:
         raise ProcessingError(f"GNSS settings: {exc}") from None
-    events_csv = survey_dir / "events.csv" if (survey_dir / "events.csv").is_file() else None
-    rover_events_first = True
+    events_csv = found.events_csv
+    rover_events_first = found.layout != "dji"     # a DJI MRK's exposures win over any event records
     if opt.get("events_csv"):  # trigger times given explicitly (e.g. from EXIF times): they win
         events_csv, rover_events_first = Path(opt["events_csv"]), False
     epsg = opt.get("epsg")
     if epsg is None and meta.get("project_crs", "").upper().startswith("EPSG:"):
         epsg = int(meta["project_crs"].split(":")[1])
-    summary = run_gnss_solve(rovers[0], bases[0], navs, out / "trajectory.pos", rtk, events_csv=events_csv,
-                             epsg=epsg, events_out=out / "events.csv", rover_events_first=rover_events_first)
+    summary = run_gnss_solve(rovers if len(rovers) > 1 else rovers[0], bases if len(bases) > 1 else bases[0], navs,
+                             out / "trajectory.pos", rtk, events_csv=events_csv, epsg=epsg,
+                             events_out=out / "events.csv", rover_events_first=rover_events_first)
+    summary["warnings"] = found.warnings + summary.get("warnings", [])
     # paths relative to the run folder, so a moved or re-used run folder stays valid
     summary["outputs"] = {k: _relative_to(v, out_dir) for k, v in summary["outputs"].items()}
     if "events" in summary:
         summary["events"]["csv"] = _relative_to(summary["events"]["csv"], out_dir)
         if summary["events"]["source"] and Path(summary["events"]["source"]).is_absolute():
             summary["events"]["source"] = _relative_to(summary["events"]["source"], survey_dir)
-    summary["inputs"] = {"rover": _relative_to(rovers[0], survey_dir), "base": _relative_to(bases[0], survey_dir),
-                         "nav": [_relative_to(p, survey_dir) for p in navs]}
+    summary["inputs"] = {"rover": [_relative_to(p, survey_dir) for p in rovers],
+                         "base": [_relative_to(p, survey_dir) for p in bases],
+                         "nav": [_relative_to(p, survey_dir) for p in navs], "layout": found.layout}
+    if found.flights:
+        summary["inputs"]["flights"] = found.summary()["flights"]
     summary["options"] = {"mode": mode, "n_bands": n_bands, "direction": kw["filter_direction"], "ar": rtk.ar_mode,
                           "ratio": rtk.ratio_threshold, "elmask_deg": rtk.elevation_mask_deg,
                           "systems": list(rtk.systems), "tdcp_slips_m": rtk.slip_tdcp_threshold_m,
@@ -201,9 +199,3 @@ def _relative_to(path, root) -> str:
         return Path(path).resolve().relative_to(Path(root).resolve()).as_posix()
     except ValueError:
         return str(path)
-
-
-def sniff_ubx(path) -> bool:
-    from ..gnss.input_files import sniff_kind
-
-    return sniff_kind(path) == "ubx"

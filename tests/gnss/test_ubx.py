@@ -254,7 +254,7 @@ def test_tim_tm2_events():
               + tim_tm2(fall | valid | gnss, 1, WEEK, 401650123, 456789, WEEK, 401650223, 1000, ch=1)
               + tim_tm2(rise | valid | utc, 2, WEEK, 401651000, 500000, WEEK, 401650223, 1000, ch=1)
               + tim_tm2(rise | gnss, 3, WEEK, 401652000, 0, WEEK, 401650223, 1000))   # time not valid
-    log = decode_ubx_bytes(stream)
+    log = decode_ubx_bytes(stream, event_edge="rising")
     t0 = WEEK * SECONDS_PER_WEEK
     np.testing.assert_allclose(log.event_gps_time_s - t0, [401650.123456789, 401651.0005 + 18], atol=5e-7)
     np.testing.assert_allclose(log.event_falling_gps_time_s - t0, [401650.223001], atol=5e-7)
@@ -262,8 +262,51 @@ def test_tim_tm2_events():
     np.testing.assert_allclose(log.event_accuracy_s, [2e-8, 2e-8])
     np.testing.assert_array_equal(log.observations.event_gps_time_s, log.event_gps_time_s)
     assert any("TIM-TM2" in w for w in log.warnings)
-    falling = decode_ubx_bytes(stream, event_edge="falling")
+    # the default is the falling edge (hot-shoe contact closing to ground; the edge convbin writes)
+    falling = decode_ubx_bytes(stream)
     np.testing.assert_array_equal(falling.event_gps_time_s, log.event_falling_gps_time_s)
+    np.testing.assert_array_equal(falling.observations.event_gps_time_s, log.event_falling_gps_time_s)
+    np.testing.assert_array_equal(decode_ubx_bytes(stream, event_edge="falling").event_gps_time_s,
+                                  falling.event_gps_time_s)
+    with pytest.raises(ValueError, match="event_edge"):
+        decode_ubx_bytes(stream, event_edge="both")
+
+
+def test_tim_tm2_utc_time_base_and_sub_millisecond_field():
+    """One hot-shoe pulse, 3 ms long, as a u-blox 8 reports it in the UTC time base (flags 0x75 for the
+    falling edge, 0xF1 for the rising one, as in the M8P walk log): towSubMs is in nanoseconds, UTC gets
+    the leap seconds of RXM-RAWX (here 18 s, convbin: utc2gpst), and each edge is reported once."""
+    stream = (rawx(WEEK, T0_TOW, [{"gnss": 0, "sv": 5}], leap=18)
+              + tim_tm2(0x75, 7, 0, 0, 0, WEEK, 401609113, 958620, ch=1, acc_ns=25)
+              + tim_tm2(0xF1, 8, WEEK, 401609117, 1234, WEEK, 401609113, 958620, ch=1, acc_ns=25))
+    t0 = WEEK * SECONDS_PER_WEEK
+    log = decode_ubx_bytes(stream)
+    # (float64 GPS seconds resolve 0.24 us at this date)
+    np.testing.assert_allclose(log.event_gps_time_s - t0, [401609.11395862 + 18], atol=3e-7)
+    np.testing.assert_allclose(log.event_rising_gps_time_s - t0, [401609.117001234 + 18], atol=3e-7)
+    np.testing.assert_allclose(log.event_rising_gps_time_s - log.event_falling_gps_time_s, [0.004 - 957386e-9],
+                               atol=3e-7)
+    assert log.warnings == []
+
+
+def nav_sol(week: int, itow_ms: int, xyz_m, fix: int = 3, flags: int = 0x0D) -> bytes:
+    x, y, z = (int(round(v * 100)) for v in xyz_m)
+    return ubx(0x01, 0x06, struct.pack("<IihBBiiiIiiiIHBBI", itow_ms, 0, week, fix, flags, x, y, z, 170, 0, 0, 0,
+                                       10, 150, 0, 12, 0))
+
+
+def test_receiver_fixes_are_marked_as_such_not_as_a_header_position():
+    """The median of the receiver's own fixes is kept as an approximate position (a starting point), with
+    its source: a base log's ppk._base_position then prefers an averaged single-point solution to it."""
+    xyz = np.array([3774088.2, -601663.1, 5089317.1])
+    stream = b"".join(rawx(WEEK, T0_TOW + k, [{"gnss": 0, "sv": 5}]) + nav_sol(WEEK, int((T0_TOW + k) * 1000),
+                                                                              xyz + [0.0, 0.0, k - 1.0])
+                      for k in range(3))
+    hdr = decode_ubx_bytes(stream).observations.header
+    np.testing.assert_allclose(hdr.approx_position_ecef_m, xyz, atol=0.006)
+    assert hdr.approx_position_source == "receiver-fixes" and hdr.rinex_version is None
+    bare = decode_ubx_bytes(rawx(WEEK, T0_TOW, [{"gnss": 0, "sv": 5}])).observations.header
+    assert bare.approx_position_ecef_m is None and bare.approx_position_source == ""
 
 
 # ============================================================================ Galileo I/NAV, BeiDou D1 (synthetic)
@@ -522,12 +565,38 @@ def test_rover_observations_match_convbin():
     assert np.all((lli_gap[:, 1] & lli_gap[:, 0]) == lli_gap[:, 0])
     assert np.all((lli_gap[:, 1] ^ lli_gap[:, 0]) <= 1) and np.count_nonzero(lli_gap[:, 1] != lli_gap[:, 0]) < 60
     assert worst["C"] <= 5e-4 + 1e-9 and worst["L"] <= 5e-4 + 1e-9
-    # time marks: convbin writes the falling edges (after the first epoch) as event epochs
-    fall = log.event_falling_gps_time_s
-    k = int(np.searchsorted(fall, events[0] - 1e-6))
-    np.testing.assert_allclose(fall[k:k + len(events)], events, atol=1e-6)
-    assert len(log.event_gps_time_s) == 317 and np.all(np.diff(log.event_gps_time_s) > 1.5)
+    # time marks: convbin writes the falling edges as event epochs, and so do we by default
+    np.testing.assert_allclose(log.event_gps_time_s, events, atol=1e-6)
+    assert len(log.event_gps_time_s) == 318 and np.all(np.diff(log.event_gps_time_s) > 1.5)
     assert log.observations.header.glonass_fcn["R10"] == -7 and log.observations.header.interval_s == 1.0
+
+
+@needs_walk
+def test_tim_tm2_edges_against_convbin_rinex_events():
+    """The walk rover's EXTINT input carries a ~0.5 Hz square wave (not a camera): 318 falling and 317
+    rising edges, UTC time base. convbin's 318 event epochs (flag 5) are the falling edges, leap seconds
+    added: ours agree to the RINEX print resolution (0.1 us; 0.24 us with float64 GPS seconds). The rising
+    edges lie a half period (0.93-1.06 s) from them: the ~1 s difference of the old rising-edge default."""
+    log = read_ubx(WALK / "rover-20181004-1532.ubx.gz")
+    _, events, _ = _parse_rinex3_obs(WALK / "rover-20181004-1532.obs")
+    if len(events) == 0:
+        pytest.skip("the converted rover RINEX has no event records")
+    fall, rise = log.event_falling_gps_time_s, log.event_rising_gps_time_s
+    assert log.message_counts["TIM-TM2"] == len(fall) + len(rise) == 635
+    assert len(events) == len(fall) == 318
+    assert np.max(np.abs(fall - events)) < 1e-6
+    np.testing.assert_array_equal(log.event_gps_time_s, fall)          # the default edge
+    assert set(log.event_channel.tolist()) == {1}
+    # the rising edge after each falling one (the low half of the wave) and before it (the high half)
+    k = np.searchsorted(rise, events)
+    after = rise[k[k < len(rise)]] - events[k < len(rise)]
+    before = events[k > 0] - rise[k[k > 0] - 1]
+    low, high = after[after < 1.5], before[before < 1.5]               # one 131 s gap in the signal
+    assert len(low) >= 300 and len(high) >= 300
+    assert 0.9 < low.min() and low.max() < 1.1 and 0.9 < high.min() and high.max() < 1.1
+    rising = read_ubx(WALK / "rover-20181004-1532.ubx.gz", event_edge="rising")
+    np.testing.assert_array_equal(rising.event_gps_time_s, rise)
+    np.testing.assert_array_equal(rising.observations.event_gps_time_s, rise)
 
 
 @needs_walk
