@@ -26,8 +26,8 @@ class SurveyFile(IdMixin, Base):
     __tablename__ = "survey_files"
     __table_args__ = (UniqueConstraint("survey_id", "path"),)
     survey_id: Mapped[str] = mapped_column(ForeignKey("surveys.id", ondelete="CASCADE"), index=True)
-    path: Mapped[str] = mapped_column(String(500))        # "rover/rover.obs", "images/IMG_0001.JPG", ...
-    kind: Mapped[str] = mapped_column(String(32))         # rinex-obs | rinex-nav | ubx | image | events | points | ...
+    path: Mapped[str] = mapped_column(String(500))        # "rover/rover.obs", "images/IMG_0001.JPG", "flights/F/..."
+    kind: Mapped[str] = mapped_column(String(32))         # rinex-obs | rinex-nav | ubx | rtcm3 | dji-mrk | image | ...
     role: Mapped[str | None] = mapped_column(String(16), default=None)   # rover | base for observations
     sha256: Mapped[str] = mapped_column(String(64))
     size: Mapped[int] = mapped_column(BigInteger)
@@ -44,6 +44,8 @@ class Upload(IdMixin, TimestampMixin, Base):
     sha256: Mapped[str] = mapped_column(String(64))
     kind: Mapped[str | None] = mapped_column(String(32), default=None)
     role: Mapped[str | None] = mapped_column(String(16), default=None)
+    # the folder the file was dropped in (relative path, kind=flight: its last name is the flight's folder)
+    folder: Mapped[str | None] = mapped_column(String(500), default=None)
     state: Mapped[str] = mapped_column(String(16), default="open")   # open | verifying | complete | failed | aborted
     received_bytes: Mapped[int] = mapped_column(BigInteger, default=0)
     error: Mapped[str | None] = mapped_column(Text, default=None)

@@ -1,6 +1,12 @@
 """Recognise an uploaded file by its content (never by its name alone) and read what the pre-flight check
 needs from it: RINEX observation/navigation (plain, gzip, Unix compress, Hatanaka), u-blox UBX logs,
+RTCM 3 logs (DJI ``*_PPKRAW.bin``, D-RTK 2 and other base logs), DJI ``*_Timestamp.MRK`` exposure files,
 JPEG/TIFF images, camera-event CSV, control/check points CSV, ODM gcp_list.txt, survey.json, zip archives.
+
+The GNSS kinds are told apart by the core's own recognition (``georef_core.gnss.input_files.sniff_bytes``),
+so that what the upload accepts is what the pipeline reads; this module only adds the metadata the
+pre-flight needs, read cheaply (RTCM 3: a frame scan of the file in bounded pieces, no decoding of the
+observations; MRK: the exposure lines).
 
 `recognise(path, name)` returns a `Recognised(kind, meta)` or raises `UnrecognisedFile(message)` whose
 message says what the file looks like and what was expected."""
@@ -22,12 +28,18 @@ GPS_EPOCH = datetime(1980, 1, 6)
 HEAD_BYTES = 65536
 TEXT_TABLE_MAX_BYTES = 50 * 1024**2
 
-KINDS = ("rinex-obs", "rinex-nav", "ubx", "image", "events", "points", "gcp-list", "survey-metadata", "archive")
+KINDS = ("rinex-obs", "rinex-nav", "ubx", "rtcm3", "dji-mrk", "image", "events", "points", "gcp-list",
+         "survey-metadata", "archive")
+OBSERVATION_KINDS = ("rinex-obs", "ubx", "rtcm3")          # files with a role (rover or base)
+# what a DJI flight folder holds that the pipeline reads: photos, the Timestamp.MRK, the aircraft's raw
+# GNSS log (RTCM 3 PPKRAW.bin, UBX, its own Rinex.obs) and a navigation file written beside them
+FLIGHT_KINDS = ("image", "dji-mrk", "rtcm3", "ubx", "rinex-obs", "rinex-nav")
 # upload "kind" hints a client may give -> file kinds they accept
 HINTS = {
-    "rover": ("rinex-obs", "ubx"),
-    "base": ("rinex-obs", "ubx"),
-    "nav": ("rinex-nav", "ubx"),
+    "rover": ("rinex-obs", "ubx", "rtcm3"),
+    "base": ("rinex-obs", "ubx", "rtcm3"),
+    "nav": ("rinex-nav", "ubx", "rtcm3"),
+    "flight": FLIGHT_KINDS,
     "images": ("image",),
     "image": ("image",),
     "events": ("events",),
@@ -38,13 +50,18 @@ HINTS = {
 }
 KIND_WORDS = {
     "rinex-obs": "a RINEX observation file", "rinex-nav": "a RINEX navigation file", "ubx": "a u-blox UBX log",
+    "rtcm3": "an RTCM 3 log", "dji-mrk": "a DJI Timestamp.MRK (camera exposures)",
     "image": "an image (JPEG/TIFF)", "events": "a camera-event CSV", "points": "a control/check points CSV",
     "gcp-list": "an ODM gcp_list.txt", "survey-metadata": "a survey.json", "archive": "a zip archive",
 }
 
 
 class UnrecognisedFile(Exception):
-    pass
+    """The file is not a survey file, or is one (``kind``) that is damaged."""
+
+    def __init__(self, message: str, kind: str | None = None):
+        super().__init__(message)
+        self.kind = kind
 
 
 @dataclass
@@ -235,6 +252,172 @@ def _ubx_meta(path: Path) -> dict:
     return meta
 
 
+# RTCM 3: message numbers -> what the pre-flight says about a log
+RTCM3_EPHEMERIS_SYSTEM = {1019: "G", 1020: "R", 1042: "C", 1044: "J", 1045: "E", 1046: "E"}
+RTCM3_MSM_SYSTEM = {107: "G", 108: "R", 109: "E", 111: "J", 112: "C"}    # message number // 10
+SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS", "E": "Galileo", "J": "QZSS", "C": "BeiDou"}
+RTCM3_SCAN_BYTES = 8 * 1024 * 1024     # the file is scanned in pieces of this size (memory bound)
+_RTCM3_MAX_FRAME = 1023 + 6
+_WEEK_S = 604800.0
+
+
+def _msm_tow_ms(buf, starts) -> "np.ndarray":
+    """The 30-bit epoch time field (ms of the GNSS week) of MSM frames starting at ``starts``."""
+    import numpy as np
+
+    p = starts + 3 + 3           # payload byte 3 holds the field's first bits (after 12 + 12 bits)
+    word = ((buf[p].astype(np.int64) << 24) | (buf[p + 1].astype(np.int64) << 16)
+            | (buf[p + 2].astype(np.int64) << 8) | buf[p + 3].astype(np.int64))
+    return (word >> 2) & 0x3FFFFFFF
+
+
+def _rtcm3_meta(path: Path) -> dict:
+    """What an RTCM 3 log holds, from a scan of its frames (CRC-24Q checked, payloads not decoded except
+    a few bits: the satellite of each ephemeris, the epoch time of MSM messages, the week of a few
+    ephemerides): message counts, observed systems, ephemerides per system, station position, time span
+    (of week; as GPS time when an ephemeris gives the week)."""
+    from collections import Counter
+
+    import numpy as np
+    from georef_core.gnss.rtcm3 import find_rtcm3_frames
+
+    size = path.stat().st_size
+    counts: Counter = Counter()
+    eph_sats: dict[str, set] = {}
+    week_payloads: dict[int, list[bytes]] = {}
+    crc_errors = bytes_in_frames = 0
+    first_tow = last_tow = None
+    weeks_run = 0            # week roll-overs seen between the first and the last epoch
+    epochs = 0
+    interval = None
+    prev_tail_ms = None
+    pos = 0
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            data = f.read(RTCM3_SCAN_BYTES + _RTCM3_MAX_FRAME)
+            at_end = pos + len(data) >= size
+            fr = find_rtcm3_frames(data)
+            keep = np.ones(len(fr.start), dtype=bool) if at_end else fr.start < RTCM3_SCAN_BYTES
+            start, length, msg = fr.start[keep], fr.length[keep], fr.msg_type[keep]
+            crc_errors += fr.n_crc_errors
+            bytes_in_frames += int(np.sum(length + 6))
+            types, n = np.unique(msg, return_counts=True)
+            counts.update(dict(zip(types.tolist(), n.tolist())))
+            buf = np.frombuffer(data, dtype=np.uint8)
+            for k in np.flatnonzero(np.isin(msg, list(RTCM3_EPHEMERIS_SYSTEM))).tolist():
+                mt, s0 = int(msg[k]), int(start[k]) + 3
+                b1, b2 = data[s0 + 1], data[s0 + 2]
+                sat = (b1 & 0x0F) if mt == 1044 else ((b1 & 0x0F) << 2) | (b2 >> 6)
+                eph_sats.setdefault(RTCM3_EPHEMERIS_SYSTEM[mt], set()).add(sat)
+                got = week_payloads.setdefault(mt, [])
+                if len(got) < 9:
+                    got.append(data[s0:s0 + int(length[k])])
+            # epochs: the time field of the GPS-time MSM messages (GPS, Galileo, QZSS; BeiDou + 14 s)
+            group = msg // 10
+            sel = np.isin(group, (107, 109, 111, 112)) & np.isin(msg % 10, (4, 5, 6, 7)) & (length >= 8)
+            if np.any(sel):
+                tow = _msm_tow_ms(buf, start[sel]) + np.where(group[sel] == 112, 14000, 0)
+                tow = tow[tow < 604800000 + 14000]
+                if len(tow):
+                    uniq = np.unique(tow)
+                    # an epoch whose messages are split by the piece boundary counts once
+                    epochs += len(uniq) - int(prev_tail_ms is not None and prev_tail_ms in uniq)
+                    if interval is None and len(uniq) > 2:
+                        d = np.diff(uniq)
+                        d = d[d > 0]
+                        if len(d):
+                            interval = float(np.median(d)) / 1000.0
+                    if first_tow is None:
+                        first_tow = int(tow[0])
+                    if prev_tail_ms is not None and int(tow[0]) < prev_tail_ms - 302400000:
+                        weeks_run += 1
+                    weeks_run += int(np.count_nonzero(np.diff(tow) < -302400000))
+                    prev_tail_ms = last_tow = int(tow[-1])
+            if at_end:
+                break
+            ends = start + length + 6
+            pos += max(RTCM3_SCAN_BYTES, int(ends.max()) if len(ends) else 0)
+    if not counts:
+        raise UnrecognisedFile("no valid RTCM 3 frame (CRC errors)", kind="rtcm3")
+    msm = {mt: c for mt, c in counts.items() if mt // 10 in RTCM3_MSM_SYSTEM and mt % 10 in range(1, 8)}
+    systems = sorted({RTCM3_MSM_SYSTEM[mt // 10] for mt in msm}, key="GREJC".find)
+    eph = {mt: c for mt, c in counts.items() if mt in RTCM3_EPHEMERIS_SYSTEM}
+    meta: dict = {
+        "frames": int(sum(counts.values())), "crc_errors": int(crc_errors),
+        "bytes_outside_frames": int(size - bytes_in_frames),
+        "message_counts": {str(k): int(v) for k, v in sorted(counts.items())},
+        "msm_messages": int(sum(msm.values())), "systems": systems,
+        "ephemeris_messages": int(sum(eph.values())),
+        "ephemeris_satellites": {s: len(v) for s, v in sorted(eph_sats.items(), key=lambda kv: "GREJC".find(kv[0]))},
+        "station_position": bool(counts.get(1005) or counts.get(1006)),
+    }
+    if first_tow is not None:
+        meta["epochs"] = int(epochs)
+        meta["first_tow_s"] = first_tow / 1000.0
+        meta["last_tow_s"] = last_tow / 1000.0 + weeks_run * _WEEK_S
+        if interval:
+            meta["interval_s"] = round(interval, 3)
+        ref, label = _rtcm3_week_reference(week_payloads)
+        if ref is not None:
+            from georef_core.gnss.gnss_time import resolve_tow_near
+
+            t0 = resolve_tow_near(meta["first_tow_s"], ref)
+            meta.update(first_gps_time_s=t0, last_gps_time_s=t0 + meta["last_tow_s"] - meta["first_tow_s"],
+                        time_reference=label)
+    return meta
+
+
+def _rtcm3_week_reference(payloads: dict[int, list[bytes]]) -> tuple[float | None, str]:
+    """A GPS time within days of the log from the week of its ephemerides (as read_rtcm3 dates a log:
+    Galileo, then BeiDou, then GPS/QZSS in the 1024-week cycle nearest today); the median of a few."""
+    import datetime as dt
+    import statistics
+
+    from georef_core.gnss.gnss_time import datetime_to_gps_time_s
+    from georef_core.gnss.rtcm3_nav import ephemeris_week_time
+
+    now = datetime_to_gps_time_s(dt.datetime.now(dt.timezone.utc).replace(tzinfo=None))
+    for types, label in (((1045, 1046), "Galileo ephemeris week"), ((1042,), "BeiDou ephemeris week"),
+                         ((1019, 1044), "GPS ephemeris week")):
+        times = []
+        for mt in types:
+            for p in payloads.get(mt, []):
+                try:
+                    t = ephemeris_week_time(mt, p, now)
+                except ValueError:
+                    continue
+                if t is not None:
+                    times.append(t)
+        if times:
+            return float(statistics.median(times)), label
+    return None, ""
+
+
+def _mrk_meta(path: Path) -> dict:
+    """Exposures of a DJI Timestamp.MRK: count, first/last GPS time, quality counts. A damaged file is
+    refused naming the line."""
+    from georef_core.errors import InputFileError
+    from georef_core.gnss.dji_mrk import quality_name, read_mrk
+
+    if path.stat().st_size > TEXT_TABLE_MAX_BYTES:
+        raise UnrecognisedFile(f"DJI Timestamp.MRK larger than {TEXT_TABLE_MAX_BYTES // 1024**2} MB", kind="dji-mrk")
+    try:
+        mrk = read_mrk(path)
+    except InputFileError as exc:
+        where = f", line {exc.line}" if exc.line is not None else ""
+        raise UnrecognisedFile(f"damaged DJI Timestamp.MRK{where}: {exc.problem}", kind="dji-mrk") from None
+    q, n = (mrk.quality.tolist(), len(mrk))
+    counts: dict[str, int] = {}
+    for code in q:
+        counts[str(code)] = counts.get(str(code), 0) + 1
+    return {"exposures": n, "first_gps_time_s": float(mrk.gps_time_s[0]), "last_gps_time_s": float(mrk.gps_time_s[-1]),
+            "gps_week": int(mrk.gps_week[0]), "first_index": int(mrk.index[0]), "last_index": int(mrk.index[-1]),
+            "quality_counts": counts,
+            "quality": {quality_name(int(c)): k for c, k in counts.items()},
+            "warnings": mrk.warnings[:5]}
+
+
 # ---------------------------------------------------------------------------------------------- tables
 
 
@@ -375,9 +558,49 @@ def _image_meta(path: Path, head: bytes) -> dict:
 
         with Image.open(path) as im:
             meta["width"], meta["height"] = im.size
+            exif = _exif_summary(im)
     except Exception as exc:   # Pillow raises many types on corrupt data
         raise UnrecognisedFile(f"image header cannot be read ({type(exc).__name__}: {exc})") from None
+    meta.update(exif)
     return meta
+
+
+def _exif_text(v) -> str | None:
+    if isinstance(v, bytes):
+        v = v.decode("ascii", errors="replace")
+    if v is None:
+        return None
+    v = str(v).strip("\x00 ").strip()
+    return v or None
+
+
+def _exif_summary(im) -> dict:
+    """Camera make and model, and the capture time (EXIF DateTimeOriginal + SubSecTimeOriginal, the
+    camera's clock, as written: ISO text without zone) of an open image; {} when it has no EXIF. Only
+    the EXIF directory is read (no pixels): the pre-flight compares photos of one flight with it."""
+    out: dict = {}
+    try:
+        ex = im.getexif()
+        make, model = _exif_text(ex.get(271)), _exif_text(ex.get(272))
+        sub = ex.get_ifd(0x8769) if ex else {}
+        dto, subsec = _exif_text(sub.get(36867)), _exif_text(sub.get(37521))
+    except Exception:   # a damaged EXIF block: the pixels are still usable
+        return out
+    if make:
+        out["make"] = make[:100]
+    if model:
+        out["model"] = model[:100]
+    if dto:
+        try:
+            t = datetime.strptime(dto, "%Y:%m:%d %H:%M:%S")
+        except ValueError:
+            t = None
+        if t is not None:
+            text = t.isoformat()
+            if subsec and subsec.isdigit():
+                text += "." + subsec[:6]
+            out["time_original"] = text
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -414,28 +637,35 @@ def recognise(path, name: str = "") -> Recognised:
     if raw[:3] == b"\xff\xd8\xff" or raw[:4] in (b"II*\x00", b"MM\x00*"):
         return Recognised("image", _image_meta(path, raw))
     head, packing = _decompressed_head(path, raw)
-    if b"CRINEX VERS" in head[:200] or b"COMPACT RINEX FORMAT" in head[:200]:
-        text = head.decode("latin-1", errors="replace")
-        # the RINEX header follows the two CRINEX lines
-        inner = "\n".join(text.splitlines()[2:])
-        meta = _rinex_obs_meta(path, packing, True, inner)
-        return Recognised("rinex-obs", meta)
+    from georef_core.gnss.compressed_files import is_hatanaka
+    from georef_core.gnss.input_files import sniff_bytes
+
+    kind = sniff_bytes(head)           # the core's recognition: what is accepted is what the pipeline reads
+    text = head.decode("latin-1", errors="replace") if kind in ("rinex-obs", "rinex-nav") else ""
+    if kind == "rinex-obs" and is_hatanaka(head):
+        inner = "\n".join(text.splitlines()[2:])          # the RINEX header follows the two CRINEX lines
+        return Recognised("rinex-obs", _rinex_obs_meta(path, packing, True, inner))
+    if kind == "rinex-obs":
+        return Recognised("rinex-obs", _rinex_obs_meta(path, packing, False, text))
+    if kind == "rinex-nav":
+        meta = _rinex_header(text)
+        if not meta.get("header_complete"):
+            raise UnrecognisedFile("RINEX navigation header has no END OF HEADER line (truncated file?)")
+        if packing:
+            meta["compressed"] = packing
+        return Recognised("rinex-nav", meta)
     first_line = head[:200].split(b"\n", 1)[0].decode("latin-1", errors="replace")
     if "RINEX VERSION" in first_line:
-        text = head.decode("latin-1", errors="replace")
-        t = first_line[20:21].upper()
-        if t == "O" or "OBSERVATION" in first_line.upper():
-            return Recognised("rinex-obs", _rinex_obs_meta(path, packing, False, text))
-        if t in ("N", "G", "H", "L", "C", "E", "J", "I") or "NAV" in first_line.upper():
-            meta = _rinex_header(text)
-            if not meta.get("header_complete"):
-                raise UnrecognisedFile("RINEX navigation header has no END OF HEADER line (truncated file?)")
-            if packing:
-                meta["compressed"] = packing
-            return Recognised("rinex-nav", meta)
-        raise UnrecognisedFile(f"a RINEX file of type {t!r} (meteorological/clock files are not used)")
-    if packing is None and b"\xb5\x62" in raw[:4096]:
+        raise UnrecognisedFile(f"a RINEX file of type {first_line[20:21].upper()!r} (meteorological, clock and "
+                               "other RINEX files are not used: observation or navigation files are)")
+    if kind in ("ubx", "rtcm3") and packing is not None:
+        raise UnrecognisedFile(f"{KIND_WORDS[kind]} packed with {packing}: send it unpacked (or in a zip archive)")
+    if kind == "ubx":
         return Recognised("ubx", _ubx_meta(path))
+    if kind == "rtcm3":
+        return Recognised("rtcm3", _rtcm3_meta(path))
+    if kind == "dji-mrk":
+        return Recognised("dji-mrk", _mrk_meta(path))
     if packing is not None:
         raise UnrecognisedFile(f"{packing}-compressed data that is not RINEX")
     # text tables

@@ -74,6 +74,10 @@ class BundleProblem:
     # a-priori lever arm (e.g. tape-measured) used as a weighted observation when the lever arm is estimated
     lever_arm_prior_cam_m: np.ndarray | None = None
     lever_arm_prior_sigma_m: np.ndarray | None = None
+    # a-priori intrinsics (8,) (e.g. a DJI aircraft's per-unit factory calibration, DewarpData) used as
+    # weighted observations of the free intrinsics; sigma (8,) infinite where there is no prior
+    intrinsics_prior: np.ndarray | None = None
+    intrinsics_prior_sigma: np.ndarray | None = None
     fisheye: bool = False             # projection of ``intrinsics`` (see camera_model)
     # rolling shutter (module docstring): the cameras' velocities (N, 3), the image height and the readout
     # time; None / 0: a global shutter (every row exposed at the trigger)
@@ -273,7 +277,7 @@ class BundleAdjuster:
         r_g = np.einsum("kij,kj->ki", Ug, g)
         Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"])
         r_c = np.einsum("qij,qj->qi", Uc, X[p.control_point] - p.control_enu_m)
-        self._r_prior = self._lever_prior_residual(lever)
+        self._r_prior = np.concatenate([self._lever_prior_residual(lever), self._intrinsics_prior_residual(intr)])
         return r_obs, r_g, r_c
 
     def _lever_prior_residual(self, lever) -> np.ndarray:
@@ -281,6 +285,23 @@ class BundleAdjuster:
         if not self.lay.lever or p.lever_arm_prior_cam_m is None:
             return np.zeros(0)
         return (np.asarray(lever) - p.lever_arm_prior_cam_m) / np.asarray(p.lever_arm_prior_sigma_m, float)
+
+    def _intrinsics_prior_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(columns among the global parameters, intrinsic indices) of the free intrinsics with a prior."""
+        p, lay = self.prob, self.lay
+        if p.intrinsics_prior is None or p.intrinsics_prior_sigma is None:
+            return np.zeros(0, int), np.zeros(0, int)
+        sig = np.asarray(p.intrinsics_prior_sigma, float)[lay.intr_idx]
+        c = np.flatnonzero(np.isfinite(sig) & (sig > 0))
+        return c, lay.intr_idx[c]
+
+    def _intrinsics_prior_residual(self, intr) -> np.ndarray:
+        cols, k = self._intrinsics_prior_columns()
+        if not len(k):
+            return np.zeros(0)
+        p = self.prob
+        return (np.asarray(intr, float)[k] - np.asarray(p.intrinsics_prior, float)[k]) / \
+            np.asarray(p.intrinsics_prior_sigma, float)[k]
 
     def _cost(self, r_obs, r_g, r_c) -> float:
         return float(np.sum(self.w_obs * np.sum(r_obs ** 2, 1)) + np.sum(self.w_gnss * np.sum(r_g ** 2, 1))
@@ -372,6 +393,14 @@ class BundleAdjuster:
             cols.append(lay.lever_col + np.arange(3))
             vals.append(1.0 / np.asarray(p.lever_arm_prior_sigma_m, float))
             n_rows += 3
+        ri = self._intrinsics_prior_residual(p.intrinsics)
+        if len(ri):
+            cols_i, k_i = self._intrinsics_prior_columns()
+            r_all.append(ri)
+            rows.append(n_rows + np.arange(len(ri)))
+            cols.append(cols_i)
+            vals.append(1.0 / np.asarray(p.intrinsics_prior_sigma, float)[k_i])
+            n_rows += len(ri)
         Jx = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_rows + 3 * len(p.control_point), lay.nx))
 
         # point part: per-observation 2x3 blocks (JX) and control priors

@@ -28,7 +28,8 @@ written and is dropped (counted). NaN and values a field cannot hold are written
 invalid value (counted in ``Rtcm3Encoding.dropped``).
 
 Carrier-phase ambiguity. RTCM requires the phase range to lie within 2^-8 ms (+-1171 m) of the
-rough range (the fine phase-range field, 22 bits of 2^-29 ms or 24 bits of 2^-31 ms); receivers keep the integer ambiguity so that phase range - pseudorange stays small. A
+rough range (the fine phase-range field, 22 bits of 2^-29 ms or 24 bits of 2^-31 ms); receivers keep
+the integer ambiguity so that phase range - pseudorange stays small. A
 continuous arc of a signal (from one loss-of-lock flag, LLI bit 0, to the next) whose phase range
 does not fit is shifted by one whole number of cycles for the whole arc (the one that centres it on
 the rough ranges), so that decoded phases differ from the input by a constant integer number of
@@ -56,30 +57,35 @@ Times: GPS, Galileo, QZSS epoch fields are the GPS time of week in ms, BeiDou th
 (GPS - 14 s), GLONASS the day of week and the Moscow time of day in ms (UTC + 3 h, with
 gnss_time.leap_seconds_at). Epochs off the millisecond grid are rounded to it.
 
-Round-trip error bounds (round to nearest: half a step; c = 299,792,458 m/s):
+Round-trip error bounds (round to nearest: half a step; c = 299,792,458 m/s), all reached in
+tests/gnss/test_rtcm3_writer.py (measured worst cases within 0.1 % of them):
 
-============================  =================  =================
-quantity                      MSM4 / MSM5        MSM6 / MSM7
-============================  =================  =================
-pseudorange                   2^-25 ms: 8.93 mm  2^-30 ms: 0.279 mm
-phase range                   2^-30 ms: 0.279 mm 2^-32 ms: 0.0698 mm
-  in cycles (lambda >= 0.1867 m) 1.50e-3 cycles     3.74e-4 cycles
-  (plus the whole cycles of a shifted arc)
-Doppler (MSM5/7)              5e-5 m/s: <= 2.7e-4 Hz (2.63e-4 Hz at L1, 1.96e-4 Hz at L5)
-C/N0                          0.5 dB-Hz          1/32 dB-Hz (range 1..63 dB-Hz)
-lock time / LLI bit 0         identical flags (see above)
-epoch time                    exact on the 1 ms grid
-============================  =================  =================
+=====================  ==========================  ==========================
+quantity               MSM4 / MSM5                 MSM6 / MSM7
+=====================  ==========================  ==========================
+pseudorange            2^-25 ms = 8.93 mm          2^-30 ms = 0.279 mm
+phase range            2^-30 ms = 0.279 mm         2^-32 ms = 0.0698 mm
+phase (cycles)         1.50e-3 (lambda >= 0.1867)  3.74e-4 (lambda >= 0.1867)
+Doppler                (MSM5) 5e-5 m/s: 2.7e-4 Hz  (MSM7) the same
+C/N0 (1..63 dB-Hz)     0.5 dB-Hz                   1/32 dB-Hz
+=====================  ==========================  ==========================
 
-(plus about 1e-8 m of float64 rounding in the reconstruction). Ephemerides carry the navigation
-messages' own scale factors (LSBs), so broadcast values, as a RINEX file keeps them (12 decimal
-digits), come back exactly; other values are rounded to half an LSB (e.g. GLONASS position
-2^-12 km = 0.24 m, velocity 4.8e-4 m/s; Kepler angles 2^-32 pi rad = 2 cm along track; sqrt(A)
-2^-20 m^0.5 = 1 cm of radius; GPS af0 2^-32 s). Week numbers are written modulo 1024 (GPS, QZSS),
-4096 (Galileo) and 8192 (BeiDou); the week is that of the broadcast time, the stream time where
-the message stands (the toe's week except for a record whose toe lies across a week boundary from
-it), as the navigation messages do and both this project's reader and RTKLIB expect. URA, SISA and
-GLONASS FT indices are the smallest whose value is at least the record's accuracy.
+plus about 1e-8 m of float64 rounding, and for the phase the whole cycles of a shifted arc; the
+Doppler bound is 2.63e-4 Hz at L1, 1.96e-4 Hz at L5, 2.68e-4 Hz for GLONASS G1 channel +6. Epoch
+times are exact on the 1 ms grid, LLI bits 0 and 1 identical (see above).
+
+Ephemerides carry the navigation messages' own fields and scale factors (LSBs), so values that were
+broadcast come back as the satellite sent them (a RINEX file's 12-13 significant digits round to
+the same LSB: the real records of the tests come back within 3e-5 m in position and 4e-16 s in
+clock, the print precision of RINEX); other values are rounded to half an LSB (e.g. GLONASS position
+2^-12 km = 0.24 m, velocity 4.8e-4 m/s; Kepler angles 2^-32 pi rad, 2 cm along track; sqrt(A)
+2^-20 m^0.5, 1 cm of radius; GPS af0 2^-32 s = 0.07 ns). Week numbers are written modulo 1024
+(GPS, QZSS), 4096 (Galileo) and 8192 (BeiDou); the week is that of the broadcast, the stream time
+where the message stands (the toe's week except for a record whose toe lies across a week boundary
+from that time), as the navigation messages do and as this project's reader and RTKLIB expect (a
+toe in the next week, written just before the roll-over, would otherwise be read a week late). URA,
+SISA and GLONASS FT indices are the smallest whose value is at least the record's accuracy; GLONASS
+health: Bn = any bit but bit 3, ln = bit 3 (the reader's health = ln << 3 | Bn).
 """
 
 from __future__ import annotations
@@ -97,8 +103,20 @@ from .observations import RawObservations
 from .rtcm3 import _CRC24Q, _MSM_SIGNALS, RANGE_MS_M, signal_frequency_hz
 from .ubx_nav_decode import _GLONASS_FT_M, galileo_sisa_m
 
-__all__ = ["Rtcm3Encoding", "encode_rtcm3", "encode_rtcm3_stream", "frame_rtcm3", "encode_ephemeris",
-           "encode_station_1006", "encode_station_1033", "msm_lock_indicator", "BitWriter", "PRIOR_LOCK_S"]
+__all__ = [
+    "PRIOR_LOCK_S",
+    "BitWriter",
+    "Rtcm3Encoding",
+    "encode_ephemeris",
+    "encode_rtcm3",
+    "encode_rtcm3_stream",
+    "encode_station_1006",
+    "encode_station_1033",
+    "ephemeris_message_type",
+    "frame_rtcm3",
+    "is_fnav",
+    "msm_lock_indicator",
+]
 
 GLONASS_UTC_OFFSET_S = 10800.0
 BDT_TO_GPST_S = 14.0
@@ -113,6 +131,7 @@ _SIGNAL_IDS: dict[str, dict[str, int]] = {sys: {code: sid for sid, code in table
 _MSM_BASE = {"G": 1070, "R": 1080, "E": 1090, "J": 1110, "C": 1120}
 _SYSTEM_ORDER = "GREJC"
 _ROUGH_MAX = 255 * 1024 - 1     # rough range in 1/1024 ms (255 ms is the invalid value)
+_CRC_TABLE = [int(x) for x in _CRC24Q]
 
 
 @dataclass(frozen=True)
@@ -162,7 +181,7 @@ class BitWriter:
     """Big-endian bit fields (the inverse of rtcm3.BitReader); raises ValueError for a value its field
     cannot hold."""
 
-    __slots__ = ("value", "n")
+    __slots__ = ("n", "value")
 
     def __init__(self) -> None:
         self.value = 0
@@ -207,8 +226,9 @@ def frame_rtcm3(payload: bytes) -> bytes:
         raise ValueError(f"RTCM 3 payload of {len(payload)} bytes (at most 1023)")
     head = bytes([0xD3, len(payload) >> 8, len(payload) & 0xFF]) + payload
     crc = 0
+    table = _CRC_TABLE
     for b in head:
-        crc = ((crc << 8) & 0xFFFFFF) ^ int(_CRC24Q[((crc >> 16) ^ b) & 0xFF])
+        crc = ((crc << 8) & 0xFFFFFF) ^ table[(crc >> 16) ^ b]
     return head + crc.to_bytes(3, "big")
 
 
@@ -467,7 +487,7 @@ def _arc_shifts(d: np.ndarray, wl: float, lim_m: float):
         return [(0, len(d), 0, False)]
     width = 2.0 * lim_m - wl
     if (hi - lo) * wl <= width:
-        return [(0, len(d), -int(round(0.5 * (lo + hi))), False)]
+        return [(0, len(d), -round(0.5 * (lo + hi)), False)]
     out, start, lo, hi = [], 0, math.inf, -math.inf
     for p in range(len(d)):
         if not known[p]:
@@ -480,7 +500,7 @@ def _arc_shifts(d: np.ndarray, wl: float, lim_m: float):
     out.append((start, len(d), lo, hi))
     res = []
     for n, (s0, s1, a, b) in enumerate(out):
-        k = 0 if (-lim_m <= a * wl and b * wl <= lim_m) else -int(round(0.5 * (a + b)))
+        k = 0 if (-lim_m <= a * wl and b * wl <= lim_m) else -round(0.5 * (a + b))
         res.append((s0, s1, k, n > 0))
     return res
 
@@ -545,13 +565,13 @@ def encode_station_1006(station_id: int, arp_ecef_m, antenna_height_m: float = 0
     w.u(int("R" in systems), 1)
     w.u(int("E" in systems), 1)
     w.u(0, 1)                                          # reference station (not a virtual one)
-    x, y, z = (int(round(float(v) * 1e4)) for v in arp_ecef_m)
+    x, y, z = (round(float(v) * 1e4) for v in arp_ecef_m)
     w.s(x, 38, "ARP X")
     w.u(0, 2)                                          # single receiver oscillator, reserved
     w.s(y, 38, "ARP Y")
     w.u(0, 2)                                          # quarter cycle indicator
     w.s(z, 38, "ARP Z")
-    w.u(int(round(min(max(antenna_height_m, 0.0), 6.5535) * 1e4)), 16, "antenna height")
+    w.u(round(min(max(antenna_height_m, 0.0), 6.5535) * 1e4), 16, "antenna height")
     return frame_rtcm3(w.to_bytes())
 
 
@@ -602,7 +622,7 @@ def _ft_index(acc_m: float) -> int:
 def _q(value: float, scale: float) -> int:
     if not math.isfinite(value):
         raise ValueError(f"non-finite value {value}")
-    return int(round(value / scale))
+    return round(value / scale)
 
 
 def _sc(angle_rad: float, scale: float, wrap: bool = False) -> int:
@@ -620,11 +640,11 @@ def _sow(t: float) -> float:
 def _broadcast_week(t_sys: float, date_sys: float) -> int:
     """The whole week to broadcast with a time of week so that a reader placing it near the stream time
     (the stream's time of week in that week) gets ``t_sys`` back (see rtcm3_nav._in_message_week)."""
-    return int(round((t_sys - _sow(date_sys)) / SECONDS_PER_WEEK))
+    return round((t_sys - _sow(date_sys)) / SECONDS_PER_WEEK)
 
 
-def _tow_field(t_sys: float, step: float, bits: int) -> int:
-    return int(round(_sow(t_sys) / step)) % int(round(SECONDS_PER_WEEK / step))
+def _tow_field(t_sys: float, step: float) -> int:
+    return round(_sow(t_sys) / step) % round(SECONDS_PER_WEEK / step)
 
 
 def _kepler_orbit(w: BitWriter, e: KeplerEphemeris, beidou: bool) -> None:
@@ -660,13 +680,13 @@ def _gps_1019(e: KeplerEphemeris, date_s: float) -> bytes:
     w.u(0, 2)                                          # code on L2
     w.s(_sc(e.idot_rad_s, 2.0**-43), 14, "IDOT")
     w.u(e.iode & 0xFF, 8)
-    w.u(_tow_field(e.toc_gps_s, 16.0, 16), 16, "toc")
+    w.u(_tow_field(e.toc_gps_s, 16.0), 16, "toc")
     w.s(_q(e.af2_s_s2, 2.0**-55), 8, "af2")
     w.s(_q(e.af1_s_s, 2.0**-43), 16, "af1")
     w.s(_q(e.af0_s, 2.0**-31), 22, "af0")
     w.u(e.iodc & 0x3FF, 10)
     _kepler_orbit(w, e, False)
-    w.u(_tow_field(e.toe_gps_s, 16.0, 16), 16, "toe")
+    w.u(_tow_field(e.toe_gps_s, 16.0), 16, "toe")
     _kepler_angles(w, e, False)
     w.s(_q(e.tgd_s[0], 2.0**-31), 8, "TGD")
     w.u(e.health & 0x3F, 6)
@@ -679,13 +699,13 @@ def _qzss_1044(e: KeplerEphemeris, date_s: float) -> bytes:
     w = BitWriter()
     w.u(1044, 12)
     w.u(int(e.sat_id[1:]), 4, "QZSS PRN")
-    w.u(_tow_field(e.toc_gps_s, 16.0, 16), 16, "toc")
+    w.u(_tow_field(e.toc_gps_s, 16.0), 16, "toc")
     w.s(_q(e.af2_s_s2, 2.0**-55), 8, "af2")
     w.s(_q(e.af1_s_s, 2.0**-43), 16, "af1")
     w.s(_q(e.af0_s, 2.0**-31), 22, "af0")
     w.u(e.iode & 0xFF, 8)
     _kepler_orbit(w, e, False)
-    w.u(_tow_field(e.toe_gps_s, 16.0, 16), 16, "toe")
+    w.u(_tow_field(e.toe_gps_s, 16.0), 16, "toe")
     _kepler_angles(w, e, False)
     w.s(_sc(e.idot_rad_s, 2.0**-43), 14, "IDOT")
     w.u(0, 2)                                          # codes on L2
@@ -712,12 +732,12 @@ def _galileo_1045_1046(e: KeplerEphemeris, date_s: float) -> bytes:
     w.u(e.iode & 0x3FF, 10)
     w.u(_sisa_index(e.accuracy_m), 8)
     w.s(_sc(e.idot_rad_s, 2.0**-43), 14, "IDOT")
-    w.u(_tow_field(e.toc_gps_s, 60.0, 14), 14, "toc")
+    w.u(_tow_field(e.toc_gps_s, 60.0), 14, "toc")
     w.s(_q(e.af2_s_s2, 2.0**-59), 6, "af2")
     w.s(_q(e.af1_s_s, 2.0**-46), 21, "af1")
     w.s(_q(e.af0_s, 2.0**-34), 31, "af0")
     _kepler_orbit(w, e, False)
-    w.u(_tow_field(e.toe_gps_s, 60.0, 14), 14, "toe")
+    w.u(_tow_field(e.toe_gps_s, 60.0), 14, "toe")
     _kepler_angles(w, e, False)
     w.s(_q(e.tgd_s[0], 2.0**-32), 10, "BGD E5a/E1")
     h = int(e.health)
@@ -744,13 +764,13 @@ def _beidou_1042(e: KeplerEphemeris, date_s: float) -> bytes:
     w.u(_ura_index(e.accuracy_m), 4)
     w.s(_sc(e.idot_rad_s, 2.0**-43), 14, "IDOT")
     w.u(e.iode & 0x1F, 5)
-    w.u(_tow_field(toc_bdt, 8.0, 17), 17, "toc")
+    w.u(_tow_field(toc_bdt, 8.0), 17, "toc")
     w.s(_q(e.af2_s_s2, 2.0**-66), 11, "a2")
     w.s(_q(e.af1_s_s, 2.0**-50), 22, "a1")
     w.s(_q(e.af0_s, 2.0**-33), 24, "a0")
     w.u(e.iodc & 0x1F, 5)
     _kepler_orbit(w, e, True)
-    w.u(_tow_field(toe_bdt, 8.0, 17), 17, "toe")
+    w.u(_tow_field(toe_bdt, 8.0), 17, "toe")
     _kepler_angles(w, e, True)
     w.s(_q(e.tgd_s[0], 1e-10), 10, "TGD1")
     w.s(_q(e.tgd_s[1] if len(e.tgd_s) > 1 else 0.0, 1e-10), 10, "TGD2")
@@ -765,9 +785,9 @@ def _moscow_tod_s(t_gps_s: float) -> float:
 
 
 def _glonass_1020(g: GlonassEphemeris) -> bytes:
-    tb = int(round(_moscow_tod_s(g.toe_gps_s) / 900.0)) % 96
+    tb = round(_moscow_tod_s(g.toe_gps_s) / 900.0) % 96
     tof = g.frame_time_gps_s if math.isfinite(g.frame_time_gps_s) else g.toe_gps_s
-    tk = int(math.floor(_moscow_tod_s(tof) + 1e-6)) % 86400
+    tk = math.floor(_moscow_tod_s(tof) + 1e-6) % 86400
     h = int(g.health)
     w = BitWriter()
     w.u(1020, 12)
@@ -918,6 +938,12 @@ def encode_rtcm3(obs: RawObservations, nav: NavigationData | None = None, *, sta
 
     def emit_nav(records) -> None:
         for r in records:
+            if isinstance(r, GlonassEphemeris) and last_msm_t is not None and \
+                    abs(last_msm_t - r.toe_gps_s) > _GLONASS_REPEAT_MAX_S:
+                # tb is a time of day: a reader takes it in the day of the stream time
+                report.skipped_ephemerides.append(f"{r.sat_id} toe {r.toe_gps_s:.0f}: more than 11 h from the "
+                                                  "stream's epochs (tb would be read in another day)")
+                continue
             try:
                 frame = encode_ephemeris(r, last_msm_t)
             except ValueError as exc:
@@ -926,9 +952,10 @@ def encode_rtcm3(obs: RawObservations, nav: NavigationData | None = None, *, sta
             out.extend(frame)
             counts[ephemeris_message_type(r)] += 1
 
+    repeat = nav_interval_s is not None and nav_interval_s > 0
     for e in range(n_e):
         t = float(times[e])
-        if station and (e == 0 or (nav_interval_s and nav_interval_s > 0 and t - last_station_t >= nav_interval_s - 1e-6)):
+        if station and (e == 0 or (repeat and t - last_station_t >= nav_interval_s - 1e-6)):
             for frame in station:
                 out.extend(frame)
                 counts[int.from_bytes(frame[3:5], "big") >> 4] += 1
@@ -954,7 +981,7 @@ def encode_rtcm3(obs: RawObservations, nav: NavigationData | None = None, *, sta
     emit_nav(plan.get(n_e, ()))
     report.data = bytes(out)
     report.message_counts = dict(sorted(counts.items()))
-    report.n_epochs = int(len(msm_epochs))
+    report.n_epochs = len(msm_epochs)
     return report
 
 

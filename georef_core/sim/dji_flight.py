@@ -33,6 +33,9 @@ from ..gnss.gnss_time import gps_time_s_to_week_tow
 from .flight import antenna_to_camera_enu, gps_time_to_utc
 
 DJI_RTK_SIGMA_M = (0.010, 0.010, 0.015)      # the real-time RTK fix's sigmas (north, east, up)
+# the error of the aircraft's per-unit factory calibration written as DewarpData (1 sigma): relative focal
+# length and principal point (px). A modelling assumption (docs/dji.md), not a measured DJI figure.
+FACTORY_CALIBRATION_ERROR = {"f_rel": 3e-4, "pp_px": 0.3}
 XMP_NAMESPACE = b"http://ns.adobe.com/xap/1.0/\x00"
 
 
@@ -101,6 +104,7 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
     names: dict[str, str] = {}
     folders = []
     sig = np.asarray(DJI_RTK_SIGMA_M)
+    dewarp = _factory_calibration_text(result.camera, rng, gps_time_to_utc(events[0].exposure_gps_time_s))
     for k in range(n_flights):
         utc0 = gps_time_to_utc(t_first[k])
         stem = f"DJI_{utc0:%Y%m%d%H%M}_{k + 1:03d}"
@@ -133,7 +137,9 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
             if src.is_file():
                 dst = folder / new_name
                 shutil.move(str(src), dst)
-                insert_xmp(dst, xmp_packet(_xmp_tags(traj, te, lat, lon, h, sig, result.camera)))
+                tags = _xmp_tags(traj, te, lat, lon, h, sig, result.camera)
+                tags["DewarpData"], tags["DewarpFlag"] = dewarp, "0"
+                insert_xmp(dst, xmp_packet(tags))
             names[e.name] = new_name
         (folder / f"{stem}_Timestamp.MRK").write_text("\n".join(mrk_lines) + "\n")
     _split_base(out / "base", log_end[0] + 0.5 if n_flights > 1 else None)
@@ -149,6 +155,19 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
     write_json(out / "truth" / "dji_names.json", {"names": names, "flights": [f.name for f in folders],
                                                  "rtk_sigma_neu_m": list(DJI_RTK_SIGMA_M)})
     return {"flights": [f.name for f in folders], "photos": len(names)}
+
+
+def _factory_calibration_text(camera, rng, when) -> str:
+    """DewarpData of the simulated unit: the true camera with a factory calibration error drawn once
+    (FACTORY_CALIBRATION_ERROR), in DJI's layout (principal point as an offset from width/2, height/2 with
+    the pixel corner at 0; coefficients k1, k2, p1, p2, k3)."""
+    err = FACTORY_CALIBRATION_ERROR
+    scale = 1.0 + rng.standard_normal() * err["f_rel"]
+    dx, dy = rng.standard_normal(2) * err["pp_px"]
+    cx_off = camera.cx + 0.5 - camera.width / 2.0 + dx
+    cy_off = camera.cy + 0.5 - camera.height / 2.0 + dy
+    vals = [camera.fx * scale, camera.fy * scale, cx_off, cy_off, camera.k1, camera.k2, camera.p1, camera.p2, camera.k3]
+    return f"{when:%Y-%m-%d};" + ",".join(f"{v:.12f}" for v in vals)
 
 
 def _enu_to_llh_deg(frame, enu: np.ndarray) -> tuple[float, float, float]:
@@ -175,7 +194,7 @@ def _xmp_tags(traj, te: float, lat: float, lon: float, h: float, sig, camera) ->
         "FlightPitchDegree": f"{ypr[1]:+.2f}",
         "FlightXSpeed": f"{v[1]:+.2f}", "FlightYSpeed": f"{v[0]:+.2f}", "FlightZSpeed": f"{-v[2]:+.2f}",
         "CalibratedFocalLength": f"{camera.fx:.6f}",
-        "CalibratedOpticalCenterX": f"{camera.cx:.6f}", "CalibratedOpticalCenterY": f"{camera.cy:.6f}",
+        "CalibratedOpticalCenterX": f"{camera.width / 2.0:.6f}", "CalibratedOpticalCenterY": f"{camera.height / 2.0:.6f}",
         "RtkFlag": "50", "RtkStdLon": f"{sig[1]:.5f}", "RtkStdLat": f"{sig[0]:.5f}", "RtkStdHgt": f"{sig[2]:.5f}",
     }
 

@@ -74,6 +74,38 @@ class GeorefOptions:
     # a calibrated camera (e.g. from a calibration flight, see load_calibration): the 8 OpenCV intrinsics
     # (f, cx, cy, k1, k2, k3, p1, p2, pixels) held fixed instead of self-calibrated
     fixed_intrinsics: tuple[float, ...] | None = None
+    # a camera's factory calibration written into its photos (DJI XMP DewarpData): "prior" weights it
+    # (FACTORY_CALIBRATION_SIGMA) with the self-calibration, "fixed" holds it, "ignore" self-calibrates freely
+    factory_calibration: str = "prior"
+
+
+# Weights of a factory calibration used as a prior (GeorefOptions.factory_calibration = "prior"): focal
+# length 0.05 % (a per-unit calibration drifts with temperature and focus), principal point 1 px of the
+# calibrated image, distortion loosely (the block determines it well). An assumption stated in
+# docs/dji.md, not a measured figure of DJI units.
+FACTORY_CALIBRATION_SIGMA = {"f_rel": 5e-4, "pp_px": 1.0, "k": 0.02, "p": 0.002}
+FACTORY_CALIBRATION_CHOICES = ("prior", "fixed", "ignore")
+
+
+def factory_calibration(image_path: Path, width_px: int, height_px: int) -> tuple[np.ndarray, str] | None:
+    """The 8 intrinsics (f, cx, cy, k1, k2, k3, p1, p2; OpenCV pixels of this image) of a DJI photo's
+    DewarpData, scaled when the photo is smaller than the calibrated sensor (CalibratedOpticalCenterX is
+    half the calibrated width), and a description; None when the photo has none."""
+    from ..photo.dji_xmp import read_dji_xmp
+
+    x = read_dji_xmp(image_path)
+    if x is None or x.dewarp is None:
+        return None
+    d = x.dewarp
+    cal_w = 2.0 * x.calibrated_optical_center_x_px if x.calibrated_optical_center_x_px else float(width_px)
+    k = width_px / cal_w
+    # DJI's centre is width/2 with the pixel corner at 0; OpenCV's pixel centres are whole numbers
+    cx = (cal_w / 2.0 + d.cx_offset_px) * k - 0.5
+    cal_h = 2.0 * x.calibrated_optical_center_y_px if x.calibrated_optical_center_y_px else height_px / k
+    cy = (cal_h / 2.0 + d.cy_offset_px) * k - 0.5
+    f = 0.5 * (d.fx_px + d.fy_px) * k
+    when = f" of {d.calibration_date}" if d.calibration_date else ""
+    return np.array([f, cx, cy, d.k1, d.k2, d.k3, d.p1, d.p2]), f"DewarpData{when} in {image_path.name}"
 
 
 def validate_shutter_options(opts: GeorefOptions) -> None:
@@ -104,6 +136,9 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
     opts.mode = MODE_ALIASES.get(opts.mode, opts.mode)
     if opts.mode not in MODES:
         raise ProcessingError(f"georeferencing mode {d.get('mode')!r}: one of {', '.join(MODES)}")
+    if opts.factory_calibration not in FACTORY_CALIBRATION_CHOICES:
+        raise ProcessingError(f"factory_calibration {opts.factory_calibration!r}: one of "
+                              f"{', '.join(FACTORY_CALIBRATION_CHOICES)}")
     return opts
 
 
@@ -544,7 +579,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
 
     t0 = time.perf_counter()
     report("adjustment", 0, 1)
-    result = _adjust(opts, frame, rec, control, gnss_enu, warnings, rolling=bool(shutter["rolling_shutter"]))
+    result = _adjust(opts, frame, rec, control, gnss_enu, warnings, rolling=bool(shutter["rolling_shutter"]),
+                     image_dir=image_dir)
     _shutter_outcome(shutter, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
@@ -657,7 +693,7 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
 
 
 def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list,
-            rolling: bool = False) -> _Adjusted:
+            rolling: bool = False, image_dir: Path | None = None) -> _Adjusted:
     cam = next(iter(rec.cameras.values()))
     fisheye = cm.is_fisheye(opts.camera_model)
     if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
@@ -667,6 +703,18 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     # calibrated camera (fixed_intrinsics) is what the adjustment holds
     intr_sfm = cm.from_colmap(cam.model, cam.params)
     intr0 = intr_sfm
+    prior = None
+    if opts.fixed_intrinsics is None and opts.factory_calibration != "ignore" and not fisheye and image_dir is not None:
+        first = sorted(im.name for im in rec.images.values())[0]
+        fc = factory_calibration(image_dir / first, cam.width, cam.height)
+        if fc is not None:
+            if opts.factory_calibration == "fixed":
+                opts.fixed_intrinsics = tuple(float(v) for v in fc[0])
+                warnings.append(f"camera held at its factory calibration ({fc[1]})")
+            else:
+                sg = FACTORY_CALIBRATION_SIGMA
+                prior = (fc[0], np.array([sg["f_rel"] * fc[0][0], sg["pp_px"], sg["pp_px"], sg["k"], sg["k"],
+                                          sg["k"], sg["p"], sg["p"]]), fc[1])
     if opts.fixed_intrinsics is not None:
         if len(opts.fixed_intrinsics) != 8:
             raise ProcessingError(f"fixed intrinsics need 8 values: {', '.join(cm.param_names(fisheye)[:7 if fisheye else 8])}"
@@ -758,6 +806,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
             prob.lever_arm_prior_cam_m = lever0.copy()
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
+        if prior is not None:
+            prob.intrinsics_prior, prob.intrinsics_prior_sigma = prior[0].copy(), prior[1].copy()
         return prob, gn, gcp_names
 
     free = cm.free_mask(opts.camera_model) if opts.fixed_intrinsics is None else np.zeros(8, bool)
@@ -769,6 +819,11 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     correlations: dict = {}
     gnss_rows: list[dict] = []
     stats: dict = {"mode": opts.mode}
+    if prior is not None:
+        stats["factory_calibration"] = {"source": prior[2], "used_as": "prior",
+                                        "sigma": dict(zip(cm.param_names(fisheye), prior[1].round(6).tolist()))}
+    elif opts.factory_calibration == "fixed" and opts.fixed_intrinsics is not None:
+        stats["factory_calibration"] = {"used_as": "fixed"}
 
     def run_ba(control_set, use_gnss, with_lever, with_delay, start=None, variances=None):
         prob, gn, gcps = build(control_set, use_gnss, start)

@@ -11,7 +11,7 @@ log split by restarts), navigation files in ``nav/``, control/check points in ``
 For the DJI layout ``survey_inputs`` writes into ``OUT_DIR/inputs/``:
 * ``images/``: links to every flight's photos (names prefixed by their flight folder where two
   flights use the same photo name), so the later steps see one image folder;
-* ``events.csv``: image, trigger GPS time (the MRK exposure times);
+* ``events.csv``: image, gps_time_s (the MRK exposure times: the triggers);
 * ``camera_offsets.csv``: image, antenna -> camera offset north/east/down (m) of that exposure, the
   MRK's own quality flag and flight.
 
@@ -265,7 +265,7 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
     events_csv = inputs_dir / "events.csv"
     with open(events_csv, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["image", "trigger_gps_time_s"])
+        w.writerow(["image", "gps_time_s"])
         for r in rows_out:
             w.writerow([r[0], f"{r[1]:.6f}"])
     offsets_csv = inputs_dir / "camera_offsets.csv"
