@@ -2,7 +2,7 @@
 FROM python:3.11-slim-bookworm
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
-    GEOREF_DATA_DIR=/data OMP_NUM_THREADS=1
+    GEOREF_DATA_DIR=/data OMP_NUM_THREADS=1 NUMBA_CACHE_DIR=/opt/numba-cache
 
 # open3d needs libusb and libgomp at run time; curl for the health checks
 RUN apt-get update -qq \
@@ -15,8 +15,11 @@ COPY georef_core ./georef_core
 COPY backend ./backend
 COPY worker ./worker
 RUN pip install -q .
+# numba kernels compiled into the image (minutes here, not in each container's first solve); numba only
+# reads a cache directory it can write, hence NUMBA_CACHE_DIR owned by the runtime user
+RUN python -m georef_core.warmup
 
-RUN useradd --create-home --uid 10001 georef && mkdir -p /data && chown georef /data
+RUN useradd --create-home --uid 10001 georef && mkdir -p /data && chown georef /data && chown -R georef /opt/numba-cache
 USER georef
 VOLUME /data
 EXPOSE 8000

@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml scripts/install_system_deps.sh
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip wheel
 	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m georef_core.warmup    # compiles the numba kernels into their cache now (minutes), not in the first solve
 	touch $(STAMP)
 
 $(UI): frontend/package.json frontend/package-lock.json $(shell find frontend/src frontend/index.html frontend/vite.config.ts -type f 2>/dev/null)
@@ -21,6 +22,7 @@ install: $(STAMP) $(UI)
 
 # The embedded shape: SQLite, local file storage, an in-process Celery worker; the demo site is processed on first start.
 run: install
+	@$(PY) -m georef_core.warmup --check >/dev/null || $(PY) -m georef_core.warmup   # edited kernels: compile them again now
 	$(PY) -m backend.serve_embedded
 
 test: lint test-frontend test-python

@@ -75,18 +75,26 @@ class CheckOut(BaseModel):
     warnings: int
     problems: list[CheckProblem]
     files: dict[str, int]
+    summary: str = Field(default="", description='what was found, in one line: "2 flights, 419 photos, MRK 419 '
+                                                 'exposures, RTCM 3 rover log, base: 3 RINEX files, no navigation '
+                                                 'file needed"')
 
 
 UploadKind = Literal["rover", "base", "nav", "images", "image", "events", "points", "gcp_list", "survey_metadata",
-                     "archive"]
+                     "archive", "flight"]
 
 
 class UploadIn(BaseModel):
     filename: str = Field(min_length=1, max_length=1000)
     size: int = Field(gt=0, description="bytes")
     sha256: str = Field(pattern=r"^[0-9a-fA-F]{64}$")
-    kind: UploadKind | None = None
+    kind: UploadKind | None = Field(default=None, description="what the file is expected to be (checked against "
+                                    "its content); flight: a file of a DJI flight folder (photo, Timestamp.MRK, "
+                                    "raw log, navigation file), stored in flights/<folder's name>/")
     role: Literal["rover", "base"] | None = None
+    folder: str | None = Field(default=None, max_length=1000,
+                               description="the relative folder the file was dropped in (e.g. DCIM/100_0004); "
+                                           "needed with kind=flight: its last name names the flight folder")
 
 
 class UploadOut(ORM):
@@ -97,6 +105,7 @@ class UploadOut(ORM):
     sha256: str
     kind: str | None
     role: str | None
+    folder: str | None = None
     state: str
     received_bytes: int
     error: str | None

@@ -261,7 +261,7 @@ _RTCM3_MAX_FRAME = 1023 + 6
 _WEEK_S = 604800.0
 
 
-def _msm_tow_ms(buf, starts) -> "np.ndarray":
+def _msm_tow_ms(buf, starts):
     """The 30-bit epoch time field (ms of the GNSS week) of MSM frames starting at ``starts``."""
     import numpy as np
 

@@ -19,11 +19,15 @@ class StepInfo:
 
 
 STEPS: tuple[StepInfo, ...] = (
-    StepInfo("gnss", (), ("rover/", "base/", "nav/", "events.csv", "survey.json"), ("gnss",), False, ("crs",)),
+    # DJI flight folders (flights/<name>/: photos, Timestamp.MRK, raw log) are read whole by both: the MRK
+    # exposures are tied to the photos of their folder
+    StepInfo("gnss", (), ("rover/", "base/", "nav/", "flights/", "events.csv", "survey.json"), ("gnss",), False,
+             ("crs",)),
     # georef reads the PPK of the gnss step, and recomputes it from the observations when the images are
     # tied to their EXIF times (setting exif_time_offset_s): on a worker of its own (the heavy queue, its own
     # disk) it needs them in its survey folder as well
-    StepInfo("georef", ("gnss",), ("rover/", "base/", "nav/", "images/", "gcp/", "events.csv", "survey.json"),
+    StepInfo("georef", ("gnss",), ("rover/", "base/", "nav/", "flights/", "images/", "gcp/", "events.csv",
+                                   "survey.json"),
              ("georef",), True, ("crs", "vertical")),
     StepInfo("dense", ("georef",), (), ("dense",), True, ("crs",)),
     StepInfo("volumes", ("dense",), (), ("volumes",), False, ("crs", "stockpiles")),

@@ -99,8 +99,10 @@ def _file(ctx: Ctx, survey_id: str, file_id: str) -> SurveyFile:
 def set_file_role(ctx: Ctx, survey_id: str, file_id: str, role: str) -> SurveyFile:
     s = require_survey(ctx, survey_id, "editor")
     f = _file(ctx, survey_id, file_id)
-    if f.kind not in ("rinex-obs", "ubx"):
+    if f.kind not in file_kinds.OBSERVATION_KINDS:
         raise Unprocessable("only GNSS observation files have a role (rover or base)")
+    if f.path.startswith("flights/"):
+        raise Unprocessable(f"{f.path} is the raw log of a DJI flight folder: it is the rover's")
     if role not in ("rover", "base"):
         raise Unprocessable("role: rover or base")
     new_path = f"{role}/{f.path.rsplit('/', 1)[-1]}"
@@ -175,112 +177,11 @@ def set_point_role(ctx: Ctx, survey_id: str, name: str, role: str) -> dict:
 # ----------------------------------------------------------------------------------------- pre-flight
 
 
-def _problem(severity: str, code: str, message: str, files=()) -> dict:
-    return {"severity": severity, "code": code, "message": message, "files": list(files)}
-
-
 def preflight(ctx: Ctx, survey_id: str) -> dict:
-    """Problems to fix before processing, each with a code the UI can key on."""
+    """Problems to fix before processing, each with a code the UI can key on, and a summary line of what
+    was found (services/preflight.py)."""
+    from . import preflight as checks
+
     s = require_survey(ctx, survey_id, "viewer")
-    files = survey_files(ctx.db, survey_id)
-    by_kind: dict[str, list[SurveyFile]] = {}
-    for f in files:
-        by_kind.setdefault(f.kind, []).append(f)
-    obs = by_kind.get("rinex-obs", []) + by_kind.get("ubx", [])
-    rover = [f for f in obs if f.role == "rover"]
-    base = [f for f in obs if f.role == "base"]
-    unassigned = [f for f in obs if f.role not in ("rover", "base")]
-    problems: list[dict] = []
-    if unassigned:
-        problems.append(_problem("error", "observation-role-unknown", "observation file(s) not assigned to the rover "
-                                 "or the base: set their role", [f.path for f in unassigned]))
-    if not rover:
-        problems.append(_problem("error", "missing-rover", "no rover (drone) GNSS observations"))
-    if len(rover) > 1:
-        problems.append(_problem("error", "several-rover-files", "more than one rover observation file; keep one",
-                                 [f.path for f in rover]))
-    if not base:
-        problems.append(_problem("error", "missing-base", "no base station observations"))
-    if len(base) > 1:
-        problems.append(_problem("error", "several-base-files", "more than one base observation file; keep one",
-                                 [f.path for f in base]))
-    has_ubx_nav = any(f.kind == "ubx" for f in obs)
-    if not by_kind.get("rinex-nav") and not has_ubx_nav:
-        problems.append(_problem("error", "missing-navigation", "no navigation (ephemeris) file: upload the RINEX "
-                                 "navigation file of the day (e.g. from the base receiver or an IGS/CORS server)"))
-
-    def span(f):
-        m = f.meta or {}
-        a, b = m.get("first_gps_time_s"), m.get("last_gps_time_s")
-        return (a, b) if a is not None and b is not None else None
-
-    if len(rover) == 1 and len(base) == 1:
-        rs, bs = span(rover[0]), span(base[0])
-        if rs and bs:
-            overlap = min(rs[1], bs[1]) - max(rs[0], bs[0])
-            dur = max(rs[1] - rs[0], 1e-9)
-            if overlap <= 0:
-                problems.append(_problem("error", "no-time-overlap", "rover and base observations do not overlap in "
-                                         "time", [rover[0].path, base[0].path]))
-            elif overlap < 0.95 * dur:
-                problems.append(_problem("warning", "partial-time-overlap",
-                                         f"the base covers {100 * overlap / dur:.0f} % of the rover's "
-                                         f"{dur / 60:.1f} min", [rover[0].path, base[0].path]))
-        else:
-            problems.append(_problem("info", "time-span-unknown", "observation time spans could not be read before "
-                                     "processing (compressed or UBX without raw measurements)",
-                                     [f.path for f in rover + base if not span(f)]))
-    images = by_kind.get("image", [])
-    events_file = next((f for f in by_kind.get("events", []) if f.path == "events.csv"), None)
-    rover_marks = sum(int((f.meta or {}).get("event_marks", 0)) for f in rover)
-    if not images:
-        problems.append(_problem("warning", "no-images", "no images: only the GNSS trajectory can be computed"))
-    else:
-        if events_file is not None:
-            listed = set((events_file.meta or {}).get("images") or [])
-            n_events = int((events_file.meta or {}).get("events", 0))
-            names = {f.path.rsplit("/", 1)[-1] for f in images}
-            if listed:
-                missing = sorted(names - listed)
-                if missing:
-                    problems.append(_problem("warning", "images-without-events",
-                                             f"{len(missing)} image(s) have no camera event in events.csv",
-                                             [f"images/{n}" for n in missing[:50]]))
-                unknown = sorted(listed - names)
-                if unknown:
-                    problems.append(_problem("warning", "events-without-images",
-                                             f"{len(unknown)} event(s) name images that were not uploaded", unknown[:50]))
-            elif n_events != len(images):
-                problems.append(_problem("warning", "images-without-events",
-                                         f"{len(images)} images but {n_events} camera events in events.csv"))
-        elif rover_marks:
-            if rover_marks != len(images):
-                problems.append(_problem("warning", "images-without-events",
-                                         f"{len(images)} images but {rover_marks} event marks in the rover file"))
-        else:
-            problems.append(_problem("warning", "images-without-events", "no camera events: neither events.csv nor "
-                                     "event marks in the rover observations; images will be matched by EXIF time"))
-    pts = next((f for f in by_kind.get("points", []) if f.path == POINTS_PATH), None)
-    if pts is None:
-        problems.append(_problem("warning", "no-points", "no control/check points: no residual table can be computed"))
-    elif not (pts.meta or {}).get("check"):
-        problems.append(_problem("warning", "no-check-points", "no check point: accuracy cannot be verified "
-                                 "independently (switch some points to check)", [pts.path]))
-    gl = next((f for f in by_kind.get("gcp-list", [])), None)
-    if gl is not None and images:
-        names = {f.path.rsplit("/", 1)[-1] for f in images}
-        unknown = sorted(set((gl.meta or {}).get("images") or []) - names)
-        if unknown:
-            problems.append(_problem("warning", "gcp-list-unknown-images",
-                                     f"gcp_list.txt measures {len(unknown)} image(s) that were not uploaded",
-                                     unknown[:50]))
     site = require_site(ctx, s.site_id, "viewer")
-    if gl is not None:
-        crs = str((gl.meta or {}).get("crs", "")).upper()
-        if crs.startswith("EPSG:") and crs != site.crs.upper():
-            problems.append(_problem("warning", "crs-mismatch", f"gcp_list.txt is in {crs}, the site in {site.crs}",
-                                     [gl.path]))
-    errors = sum(p["severity"] == "error" for p in problems)
-    return {"survey_id": s.id, "ok": errors == 0, "errors": errors,
-            "warnings": sum(p["severity"] == "warning" for p in problems), "problems": problems,
-            "files": {k: len(v) for k, v in sorted(by_kind.items())}}
+    return checks.run(ctx, s, survey_files(ctx.db, survey_id), site)

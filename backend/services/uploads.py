@@ -4,7 +4,13 @@ create (filename, size, sha256, kind?) -> PUT chunks in order (Content-Range; a 
 `received_bytes`: resuming after a failure is "GET, then send from received_bytes") -> complete: the
 size and SHA-256 are verified, the content recognised (never trusted from the name), archives safely
 extracted, and the files attached to the survey in one transaction. A refused upload changes nothing
-in the survey."""
+in the survey.
+
+DJI flight folders (photos + ``*_Timestamp.MRK`` + the raw log ``*_PPKRAW.bin``, as the aircraft writes
+them, several per survey after battery swaps) are kept together: their files go to
+``flights/<flight folder name>/`` (the pipeline ties photos to their flight's MRK by folder). A zip is
+searched for folders holding a Timestamp.MRK; a single file says its folder with ``kind=flight`` and
+``folder`` (the relative folder it was dropped in, e.g. ``DCIM/100_0004``)."""
 
 from __future__ import annotations
 
@@ -30,7 +36,11 @@ from .permissions import require_survey, require_upload
 
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._+\-() ]")
-LAYOUT_FOLDERS = ("rover", "base", "nav", "images", "gcp")
+LAYOUT_FOLDERS = ("rover", "base", "nav", "images", "gcp", "flights")
+FLIGHTS_FOLDER = "flights"
+# DJI names the files of a flight folder <folder>_Timestamp.MRK, <folder>_PPKRAW.bin, <folder>_Rinex.obs ...
+_DJI_FLIGHT_FILE = re.compile(r"^(.+?)_(Timestamp\.MRK|PPKRAW\.bin|PPKNAV\.nav|Rinex\.obs|EVENTLOG\.bin)$",
+                              re.IGNORECASE)
 
 
 def sanitise_filename(name: str) -> str:
@@ -41,11 +51,36 @@ def sanitise_filename(name: str) -> str:
     return base
 
 
+def sanitise_folder(folder: str | None) -> str | None:
+    """A relative folder as dropped ('DCIM/100_0004'): each name made safe, '.', '..' and empty names
+    dropped; None when nothing is left."""
+    if folder is None:
+        return None
+    parts = []
+    for part in folder.replace("\\", "/").split("/"):
+        part = _SAFE_NAME.sub("_", part.strip())[:200].lstrip(".")
+        if part:
+            parts.append(part)
+    return "/".join(parts)[:500] or None
+
+
+def flight_name(folder: str | None, filename: str = "") -> str | None:
+    """The name of a DJI flight's folder under flights/: the last name of the folder the file was in,
+    else the prefix of a DJI flight file name ('100_0004' of '100_0004_Timestamp.MRK'), else None."""
+    folder = sanitise_folder(folder)
+    if folder:
+        return folder.rsplit("/", 1)[-1]
+    m = _DJI_FLIGHT_FILE.match(posixpath.basename(filename))
+    if m:
+        return sanitise_folder(m.group(1))
+    return None
+
+
 # ----------------------------------------------------------------------------------------- create / status
 
 
 def create_upload(ctx: Ctx, survey_id: str, filename: str, size: int, sha256: str, kind: str | None,
-                  role: str | None) -> Upload:
+                  role: str | None, folder: str | None = None) -> Upload:
     require_survey(ctx, survey_id, "editor")
     if size <= 0:
         raise Unprocessable("size: the file is empty")
@@ -61,8 +96,12 @@ def create_upload(ctx: Ctx, survey_id: str, filename: str, size: int, sha256: st
         raise Unprocessable("role: rover or base")
     if kind in ("rover", "base"):
         role = kind
+    folder = sanitise_folder(folder)
+    if kind == "flight" and not folder and flight_name(None, filename) is None:
+        raise Unprocessable("folder: kind=flight needs the flight folder the file was in (e.g. DCIM/100_0004), "
+                            "so that its photos, Timestamp.MRK and raw log stay together")
     up = Upload(survey_id=survey_id, filename=sanitise_filename(filename), size=size, sha256=sha256, kind=kind,
-                role=role, created_by=ctx.user.id,
+                role=role, folder=folder, created_by=ctx.user.id,
                 expires_at=utcnow() + timedelta(hours=ctx.settings.upload_expiry_hours))
     ctx.db.add(up)
     ctx.db.flush()
@@ -188,10 +227,18 @@ def _guess_role(name: str) -> str | None:
     return None
 
 
-def _place(kind: str, name: str, role: str | None, hint: str | None) -> tuple[str, str | None]:
+def _place(kind: str, name: str, role: str | None, hint: str | None,
+           flight: str | None = None) -> tuple[str, str | None]:
+    """(path in the survey folder, role) of a recognised file; ``flight``: the DJI flight folder it
+    belongs to (its files go to flights/<flight>/, the raw log being the rover's)."""
     base = posixpath.basename(name)
-    if kind in ("rinex-obs", "ubx"):
-        if kind == "ubx" and hint == "nav":
+    if flight is not None:
+        return f"{FLIGHTS_FOLDER}/{flight}/{base}", ("rover" if kind in file_kinds.OBSERVATION_KINDS else None)
+    if kind == "dji-mrk":
+        raise Refused("a DJI Timestamp.MRK belongs with its flight's photos: upload it with kind=flight and "
+                      "folder=<the flight folder>, or zip the flight folder")
+    if kind in file_kinds.OBSERVATION_KINDS:
+        if kind in ("ubx", "rtcm3") and hint == "nav":
             return f"nav/{base}", None
         role = role or _guess_role(base)
         return (f"{role}/{base}" if role else f"unassigned/{base}"), role
@@ -209,34 +256,93 @@ def _strip_common_folder(names: list[str]) -> str:
     return ""
 
 
-def _place_archive_members(members, hint: str | None, role: str | None) -> tuple[list[Placed], list[dict]]:
+def _flight_folders(recognised: list[tuple], archive_name: str, hint: str | None,
+                    folder: str | None) -> dict[str, str]:
+    """Folders of an archive that are DJI flights -> their name under flights/. A flight folder is one
+    holding a Timestamp.MRK, or one already under flights/ (a survey folder zipped back); with
+    kind=flight, the archive's top folder too. Names are the folders' own names (the whole relative path
+    when two flights share a name)."""
+    mrks: dict[str, list[str]] = {}
+    dirs = set()
+    for name, rec, _exc in recognised:
+        d = posixpath.dirname(name)
+        dirs.add(d)
+        if rec is not None and rec.kind == "dji-mrk":
+            mrks.setdefault(d, []).append(posixpath.basename(name))
+    for d, names in mrks.items():
+        if len(names) > 1:
+            raise Refused(f"{d or 'the archive'} holds {len(names)} Timestamp.MRK files ({', '.join(sorted(names))}): "
+                          "keep each flight in its own folder")
+    flight_dirs = set(mrks)
+    prefix = _strip_common_folder([n for n, _r, _e in recognised])
+    for d in dirs:
+        rel = d[len(prefix):] if prefix and d.startswith(prefix) else d
+        if rel.startswith(f"{FLIGHTS_FOLDER}/") and rel.count("/") == 1:
+            flight_dirs.add(d)
+    if hint == "flight":
+        flight_dirs.add(prefix.rstrip("/"))
+    out: dict[str, str] = {}
+    for d in sorted(flight_dirs):
+        if d:
+            out[d] = sanitise_folder(posixpath.basename(d)) or "flight"
+        else:   # files at the top of the archive: the MRK's name, the folder given, or the archive's name
+            mrk = (mrks.get("") or [""])[0]
+            out[d] = flight_name(folder, mrk) or sanitise_folder(posixpath.splitext(archive_name)[0]) or "flight"
+    names = list(out.values())
+    for d, n in list(out.items()):
+        if names.count(n) > 1:
+            out[d] = sanitise_folder(d.replace("/", "_")) or n
+    return out
+
+
+def _place_archive_members(members, hint: str | None, role: str | None, archive_name: str = "",
+                           folder: str | None = None) -> tuple[list[Placed], list[dict]]:
     placed: list[Placed] = []
     ignored: list[dict] = []
-    prefix = _strip_common_folder([m.name for m in members])
+    recognised: list[tuple] = []
     for m in members:
-        name = m.name[len(prefix):] if prefix else m.name
-        folder = name.split("/", 1)[0] if "/" in name else ""
         try:
-            rec = file_kinds.recognise(m.path, name)
+            recognised.append((m.name, file_kinds.recognise(m.path, m.name), None))
         except file_kinds.UnrecognisedFile as exc:
+            if exc.kind == "dji-mrk":     # a damaged MRK would leave its flight's photos without exposures
+                raise Refused(f"{m.name}: {exc}") from None
+            recognised.append((m.name, None, exc))
+    flights = _flight_folders(recognised, archive_name, hint, folder)
+    prefix = _strip_common_folder([m.name for m in members])
+    for m, (_n, rec, exc) in zip(members, recognised):
+        name = m.name[len(prefix):] if prefix else m.name
+        top = name.split("/", 1)[0] if "/" in name else ""
+        if rec is None:
             ignored.append({"name": m.name, "reason": str(exc)})
             continue
         if rec.kind == "archive":
             ignored.append({"name": m.name, "reason": "archive inside the archive (not extracted)"})
             continue
-        if folder and folder not in LAYOUT_FOLDERS:
-            ignored.append({"name": m.name, "reason": f"outside the survey folder layout ({folder}/)"})
+        flight = flights.get(posixpath.dirname(m.name))
+        if flight is not None:
+            if rec.kind not in file_kinds.FLIGHT_KINDS:
+                ignored.append({"name": m.name, "reason": f"{file_kinds.KIND_WORDS[rec.kind]} in the DJI flight "
+                                                          f"folder {flight} (not a flight file)"})
+                continue
+            path, r = _place(rec.kind, name, None, None, flight)
+            placed.append(Placed(path, rec.kind, r, rec.meta, m.path))
             continue
-        expected = {"rover": ("rinex-obs", "ubx"), "base": ("rinex-obs", "ubx"), "nav": ("rinex-nav", "ubx"),
-                    "images": ("image",), "gcp": ("points", "gcp-list")}.get(folder)
-        if expected and rec.kind not in expected:
-            ignored.append({"name": m.name, "reason": f"{file_kinds.KIND_WORDS[rec.kind]} in {folder}/"})
+        if top and top not in LAYOUT_FOLDERS:
+            ignored.append({"name": m.name, "reason": f"outside the survey folder layout ({top}/)"})
             continue
-        if not folder and hint in file_kinds.HINTS and hint != "archive" and rec.kind not in file_kinds.HINTS[hint]:
+        expected = {"rover": file_kinds.HINTS["rover"], "base": file_kinds.HINTS["base"], "nav": file_kinds.HINTS["nav"],
+                    "images": ("image",), "gcp": ("points", "gcp-list"),
+                    FLIGHTS_FOLDER: ()}.get(top)
+        if expected is not None and rec.kind not in expected:
+            where = f"{top}/" if top != FLIGHTS_FOLDER else f"{posixpath.dirname(name)}/ (not a flight folder)"
+            ignored.append({"name": m.name, "reason": f"{file_kinds.KIND_WORDS[rec.kind]} in {where}"})
+            continue
+        if not top and hint in file_kinds.HINTS and hint not in ("archive", "flight") \
+                and rec.kind not in file_kinds.HINTS[hint]:
             ignored.append({"name": m.name, "reason": f"{file_kinds.KIND_WORDS[rec.kind]}, not what kind={hint} expects"})
             continue
-        r = folder if folder in ("rover", "base") else role
-        h = "nav" if folder == "nav" else hint
+        r = top if top in ("rover", "base") else role
+        h = "nav" if top == "nav" else hint
         path, r = _place(rec.kind, name, r, h)
         placed.append(Placed(path, rec.kind, r, rec.meta, m.path))
     seen: dict[str, str] = {}
@@ -319,8 +425,11 @@ def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
     try:
         rec = file_kinds.recognise(whole, up.filename)
     except file_kinds.UnrecognisedFile as exc:
-        raise Refused(f"not a survey file: {exc}. Expected RINEX observation/navigation, u-blox UBX, JPEG/TIFF "
-                      "images, events.csv, points.csv, gcp_list.txt or a zip archive of these") from None
+        if exc.kind is not None:
+            raise Refused(str(exc)) from None
+        raise Refused(f"not a survey file: {exc}. Expected RINEX observation/navigation, u-blox UBX, RTCM 3 logs, "
+                      "DJI Timestamp.MRK, JPEG/TIFF images, events.csv, points.csv, gcp_list.txt or a zip archive "
+                      "of these") from None
     ignored: list[dict] = []
     if rec.kind == "archive":
         s = ctx.settings
@@ -330,7 +439,7 @@ def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
             members = extract_zip(whole, tmp / "x", limits)
         except UnsafeArchive as exc:
             raise Refused(f"archive refused: {exc}") from None
-        placed, ignored = _place_archive_members(members, up.kind, up.role)
+        placed, ignored = _place_archive_members(members, up.kind, up.role, up.filename, up.folder)
         if not placed:
             raise Refused("the archive holds no survey file" + (
                 f" ({len(ignored)} ignored: " + "; ".join(f"{i['name']}: {i['reason']}" for i in ignored[:5]) + ")"
@@ -341,7 +450,10 @@ def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
                           f"({' or '.join(file_kinds.KIND_WORDS[k] for k in file_kinds.HINTS[up.kind])} expected)")
         if up.kind == "archive":
             raise Refused(f"this is {file_kinds.KIND_WORDS[rec.kind]}, not a zip archive")
-        path, role = _place(rec.kind, up.filename, up.role, up.kind)
+        flight = None
+        if up.kind == "flight" or rec.kind == "dji-mrk":
+            flight = flight_name(up.folder, up.filename)
+        path, role = _place(rec.kind, up.filename, up.role, up.kind, flight)
         placed = [Placed(path, rec.kind, role, rec.meta, whole)]
     # content-addressed blobs first (harmless if the transaction below fails), then the rows at once
     survey = ctx.db.get(Survey, up.survey_id)

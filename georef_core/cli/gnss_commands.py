@@ -113,6 +113,11 @@ def cmd_solve(args) -> int:
     opts, notes = options_from_args(args)
     for n in notes:
         print(f"georef: warning: {n}", file=sys.stderr)
+    from ..warmup import GNSS_COMPILE_ESTIMATE_S, gnss_kernels_cached
+
+    if not gnss_kernels_cached():
+        print(f"georef: first run: compiling the GNSS kernels, about {GNSS_COMPILE_ESTIMATE_S} s (once; "
+              "`georef warmup` does it ahead of time)", file=sys.stderr, flush=True)
     summary = run_gnss_solve(args.rover, args.base, args.nav, args.out, opts, events_csv=args.events, epsg=args.crs)
     for w in summary["warnings"]:
         print(f"georef: warning: {w}", file=sys.stderr)

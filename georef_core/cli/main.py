@@ -15,6 +15,12 @@ def main(argv: list[str] | None = None) -> int:
 
     for command in (gnss_commands, simulate_command, georef_command, dense_command, volume_command, demo_command):
         command.register(sub)
+    from .. import warmup
+
+    w = sub.add_parser("warmup", help="compile every numba kernel into its on-disk cache ahead of use "
+                                      "(`make install` runs it; a first solve then compiles nothing)")
+    warmup.add_arguments(w)
+    w.set_defaults(func=warmup.run)
     args = parser.parse_args(argv)
     import warnings
 

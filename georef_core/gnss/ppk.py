@@ -297,9 +297,10 @@ def _velocities(time_s, pos, cov, status, spp: SppResult):
 def solve(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions,
           progress=None) -> PpkSolution:
     """Single-threaded BLAS: the filter's matrices are small (~100-300), and a threaded BLAS on a busy
-    machine makes each solve an order of magnitude slower (measured 17x on 2 cores)."""
+    machine makes each solve an order of magnitude slower (measured 17x on 2 cores). ``progress(stage, done,
+    total)``: before each stage (of 4, reading the files being the first: solve_files)."""
     with _blas_controller().limit(limits=1, user_api="blas"):
-        return _solve(rover_raw, base_raw, nav, opts)
+        return _solve(rover_raw, base_raw, nav, opts, progress)
 
 
 _BLAS_CONTROLLER = None
@@ -317,8 +318,11 @@ def _blas_controller():
     return _BLAS_CONTROLLER
 
 
-def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions) -> PpkSolution:
+def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: NavigationData, opts: RtkOptions,
+           progress=None) -> PpkSolution:
     opts.validate()
+    if progress:
+        progress("orbits, single point positions, slips", 1, 4)
     data, spp, base_pos, notes, timings, rover = prepare(rover_raw, base_raw, nav, opts)
     flt = RtkFilter(data, opts)
     known = np.asarray(opts.known_start_position_ecef_m, dtype=float) if opts.mode == "known-start" else None
@@ -327,6 +331,9 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
     arrays, config = flt.arrays(), flt.config()
 
     def run_pass(backward: bool, start):
+        if progress:
+            progress(f"Kalman filter, {'backward' if backward else 'forward'} pass",
+                     3 if backward and opts.filter_direction == "combined" else 2, 4)
         # fixes the carrier phase contradicts (a jump against the neighbouring fixes) get their float back
         return refuse_jumping_fixes(arrays, config, flt.run(backward=backward, known_start_ecef_m=start))[0]
 
@@ -406,11 +413,15 @@ def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
     return LoadedObservations(raw, nav, "joined"), notes
 
 
-def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSolution:
+def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions,
+                approx_gps_time_s: float | None = None, progress=None) -> PpkSolution:
     """Load the files (RINEX 2/3 in any packing, UBX or RTCM 3; a rover or base of several files is joined
-    in time order) and solve."""
+    in time order) and solve. ``approx_gps_time_s`` dates a rover RTCM 3 stream without ephemerides (e.g.
+    the first exposure of a DJI MRK)."""
     t0 = _time.perf_counter()
-    rover, rover_notes = load_receiver(rover_path, "rover")
+    if progress:
+        progress("reading the files", 0, 4)
+    rover, rover_notes = load_receiver(rover_path, "rover", approx_gps_time_s)
     first = float(rover.observations.gps_time_s[0]) if rover.observations.n_epochs else None
     base, base_notes = load_receiver(base_path, "base", first)
     window = _observation_window_gps_s(rover.observations, base.observations)
@@ -431,7 +442,7 @@ def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions) -> PpkSoluti
                                 " and no navigation file was given (add the RINEX navigation file of the day, "
                                 "e.g. the base's .nav or a CORS BRDC file)"))
     load_s = _time.perf_counter() - t0
-    sol = solve(rover.observations, base.observations, nav, opts)
+    sol = solve(rover.observations, base.observations, nav, opts, progress)
     sol.warnings[:0] = rover_notes + base_notes
     sol.timings_s["load"] = load_s
     return sol

@@ -18,12 +18,14 @@ from ..gnss.solution_io import write_parquet, write_pos
 
 def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, events_csv=None,
                    epsg: int | None = None, parquet_path=None, events_out=None,
-                   rover_events_first: bool = False) -> dict:
+                   rover_events_first: bool = False, approx_gps_time_s: float | None = None,
+                   progress=None) -> dict:
     """Solve and write the outputs. Camera events come from ``events_csv`` when given; with
-    ``rover_events_first`` the rover file's own event records win and the CSV is only the fallback."""
+    ``rover_events_first`` the rover file's own event records win and the CSV is only the fallback.
+    ``progress(stage, done, total)`` as ppk.solve_files reports it."""
     out_pos = Path(out_pos)
     out_pos.parent.mkdir(parents=True, exist_ok=True)
-    sol = solve_files(rover_path, base_path, nav_paths, opts)
+    sol = solve_files(rover_path, base_path, nav_paths, opts, approx_gps_time_s, progress=progress)
     write_pos(out_pos, sol)
     parquet_path = Path(parquet_path) if parquet_path else out_pos.with_suffix(".parquet")
     write_parquet(parquet_path, sol, epsg)
@@ -59,7 +61,7 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
 # the survey-folder form used by `georef georef` and the worker
 # --------------------------------------------------------------------------------------------------------
 
-def _has_second_frequency(path: Path) -> bool:
+def _has_second_frequency(path: Path, approx_gps_time_s: float | None = None) -> bool:
     """Whether the receiver tracked phase on a second band (L2/L5/E5b/B2...): from a RINEX observation
     header's list, or from the decoded signals of a UBX log or RTCM 3 stream (an F9P or a DJI aircraft
     records two bands, an M8T one)."""
@@ -70,7 +72,7 @@ def _has_second_frequency(path: Path) -> bool:
     if kind in ("ubx", "rtcm3"):
         from ..gnss.constants import RINEX_DIGIT_TO_BAND
 
-        raw = load_observations(path).observations
+        raw = load_observations(path, approx_gps_time_s).observations
         tracked = ~np.all(np.isnan(raw.values), axis=0)          # (S, K)
         return any(c[0] == "L" and RINEX_DIGIT_TO_BAND.get(sat[0], {}).get(c[1], 0) >= 1 and tracked[s, k]
                    for k, c in enumerate(raw.obs_codes) for s, sat in enumerate(raw.sat_ids))
@@ -104,8 +106,9 @@ _SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "
 
 
 def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None) -> dict:
-    """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json) into
-    ``out_dir/ppk/``. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
+    """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json, or DJI flight
+    folders beside base/: survey_inputs.py) into ``out_dir/ppk/``. A survey of photos alone (no raw log,
+    no base) has nothing to solve: the summary says ``skipped`` and why. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
     'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
     ``known_start_ecef_m``, ``epsg``, ``events_csv`` (trigger times that override the survey's), and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
     (ratio-test threshold), ``navsys`` ('G,E,...'), ``tdcp_slips`` (m), ``hold_variance`` (cycles²); the summary
@@ -122,6 +125,16 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
 
     found = survey_inputs(survey_dir, out_dir)
     rovers, bases, navs = found.rover_files, found.base_files, found.nav_files
+    if not rovers and not bases and not (survey_dir / "rover").is_dir() and found.image_names:
+        # photos alone (RTK-tagged or EXIF GPS): nothing to solve; the georef step uses their positions
+        out.mkdir(parents=True, exist_ok=True)
+        summary = {"skipped": True, "reason": "no raw GNSS log and no base: the photos' own positions (RTK XMP or "
+                                              "EXIF GPS) georeference the survey", "inputs": found.summary(),
+                   "warnings": found.warnings}
+        (out / "summary.json").write_text(json.dumps(summary, indent=2))
+        if progress:
+            progress("gnss", 1, 1)
+        return summary
     if not rovers:
         where = "the DJI flight folders" if found.layout == "dji" else str(survey_dir / "rover")
         raise InputFileError(survey_dir / "rover" if found.layout != "dji" else found.flights[0].folder,
@@ -134,7 +147,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     bands = {"l1": 1, "l1+l2": 2, "l1+l2+l5": 3}
     if freq != "auto" and freq not in bands:
         raise ProcessingError(f"GNSS settings: freq {freq!r} is not one of auto, {', '.join(bands)}")
-    n_bands = bands[freq] if freq != "auto" else (2 if _has_second_frequency(rovers[0]) else 1)
+    approx_t = _first_event_time(found.events_csv) if found.layout == "dji" else None
+    n_bands = bands[freq] if freq != "auto" else (2 if _has_second_frequency(rovers[0], approx_t) else 1)
     mode = opt.get("mode", "auto")
     known = opt.get("known_start_ecef_m") or meta.get("takeoff_antenna_ecef_m")
     if mode == "auto":
@@ -171,7 +185,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
         epsg = int(meta["project_crs"].split(":")[1])
     summary = run_gnss_solve(rovers if len(rovers) > 1 else rovers[0], bases if len(bases) > 1 else bases[0], navs,
                              out / "trajectory.pos", rtk, events_csv=events_csv, epsg=epsg,
-                             events_out=out / "events.csv", rover_events_first=rover_events_first)
+                             events_out=out / "events.csv", rover_events_first=rover_events_first,
+                             approx_gps_time_s=approx_t, progress=_solve_progress(progress))
     summary["warnings"] = found.warnings + summary.get("warnings", [])
     # paths relative to the run folder, so a moved or re-used run folder stays valid
     summary["outputs"] = {k: _relative_to(v, out_dir) for k, v in summary["outputs"].items()}
@@ -192,6 +207,25 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     if progress:
         progress("gnss", 1, 1)
     return summary
+
+
+def _solve_progress(progress):
+    """The solve's stages as the step's progress ("gnss: Kalman filter, forward pass", 2 / 4), saying when the
+    kernels are compiled first (not in numba's cache: a fresh install without `georef warmup`)."""
+    if not progress:
+        return None
+    from ..warmup import GNSS_COMPILE_ESTIMATE_S, gnss_kernels_cached
+
+    note = "" if gnss_kernels_cached() else f" (first run: compiling the kernels, about {GNSS_COMPILE_ESTIMATE_S} s)"
+    return lambda stage, done, total: progress(f"gnss: {stage}{note}", done, total)
+
+
+def _first_event_time(events_csv) -> float | None:
+    """The earliest trigger time of a trigger table (dates a raw log that carries no week number)."""
+    from ..gnss.camera_events import read_event_csv
+
+    times = read_event_csv(events_csv) if events_csv else []
+    return float(min(times)) if len(times) else None
 
 
 def _relative_to(path, root) -> str:

@@ -19,15 +19,17 @@ from georef_core.cli.main import main
 pytest.importorskip("pycolmap")
 
 
-def _simulate(out: Path, flights: int, seed: int = 21) -> Path:
-    assert main(["simulate", str(out), "--seed", str(seed), "--small", "--quiet", "--aircraft", "dji-rtk",
-                 "--flights", str(flights)]) == 0
+def _simulate(out: Path, flights: int, seed: int = 21, images: int | None = None) -> Path:
+    args = ["simulate", str(out), "--seed", str(seed), "--small", "--quiet", "--aircraft", "dji-rtk",
+            "--flights", str(flights)]
+    assert main(args + (["--images", str(images)] if images else [])) == 0
     return out
 
 
 @pytest.fixture(scope="module")
 def dji_survey(tmp_path_factory) -> Path:
-    return _simulate(tmp_path_factory.mktemp("dji") / "site", 1)
+    """30 photos of 640 x 480 in four lines over a 69 x 31 m site, five targets (all check points)."""
+    return _simulate(tmp_path_factory.mktemp("dji") / "site", 1, seed=23, images=30)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +72,8 @@ def test_raw_ppk_and_mrk_without_control(dji_survey, ppk_run):
     """Zero control points, every target a check point: 3D RMSE <= 2 cm from raw PPK + MRK offsets."""
     summary = json.loads((ppk_run / "georef_summary.json").read_text())
     assert summary["inputs"]["layout"] == "dji"
-    assert summary["images"]["with_gnss"] == summary["images"]["total"] == 12
+    assert summary["images"]["with_gnss"] == summary["images"]["total"] == 30
+    assert summary["adjustment"]["factory_calibration"]["used_as"] == "prior"
     assert "MRK" in summary["gnss_source"]
     lad = json.loads((ppk_run / "lever_arm_delay.json").read_text())
     assert lad["lever_arm_cam_m"] == [0.0, 0.0, 0.0]         # held: the offsets place the camera

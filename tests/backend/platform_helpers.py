@@ -235,11 +235,14 @@ class Api:
 
 
 def upload_bytes(api: Api, survey_id: str, filename: str, data: bytes, kind: str | None = None,
-                 chunk: int = 1 << 20, sha256: str | None = None):
-    """The whole chunked protocol: create, PUT chunks, complete; returns the completion response."""
+                 chunk: int = 1 << 20, sha256: str | None = None, folder: str | None = None):
+    """The whole chunked protocol: create, PUT chunks, complete; returns the completion response.
+    ``folder``: the relative folder the file was dropped in (DJI flight folders)."""
     body = {"filename": filename, "size": len(data), "sha256": sha256 or hashlib.sha256(data).hexdigest()}
     if kind:
         body["kind"] = kind
+    if folder:
+        body["folder"] = folder
     r = api.post(f"/api/v1/surveys/{survey_id}/uploads", json=body)
     assert r.status_code == 201, r.text
     up = r.json()["id"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import re
 import stat
 import zipfile
 
@@ -147,10 +148,18 @@ def test_archives(ctx):
     # a second rover log in the same survey (tests may run on other workers, so do not rely on their files)
     r = upload_bytes(api, sid, "second_flight.obs", (sim / "rover" / "rover.obs").read_bytes(), kind="rover")
     assert r.status_code == 200, r.text
+    # several rover files are joined in time order (flights after battery swaps): named, not refused;
+    # this one is the same log twice, which is said
     check = api.get(f"/api/v1/surveys/{sid}/check").json()
-    codes = {p["code"] for p in check["problems"]}
-    assert "several-rover-files" in codes          # rover/second_flight.obs + rover/rover.obs
-    assert not {"missing-navigation", "no-time-overlap", "missing-base"} & codes
+    codes = {p["code"]: p for p in check["problems"]}
+    assert check["ok"] and check["errors"] == 0, check
+    assert "several-rover-files" not in codes
+    joined = codes["rover-files-joined"]
+    assert joined["severity"] == "info" and {"rover/rover.obs", "rover/second_flight.obs"} <= set(joined["files"])
+    assert re.match(r"rover: \d RINEX files, 2024-06-24 08:10-08:12, no gap", joined["message"]), joined
+    assert codes["duplicate-files"]["severity"] == "warning"
+    assert not {"missing-navigation", "no-time-overlap", "missing-base"} & set(codes)
+    assert re.search(r"\d RINEX rover files, base: 1 RINEX file, navigation: \d RINEX files", check["summary"]), check
 
 
 def test_preflight_finds_problems(platform, ctx):

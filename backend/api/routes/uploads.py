@@ -27,7 +27,8 @@ def _out(ctx, up) -> dict:
 @router.post("/surveys/{survey_id}/uploads", status_code=201, response_model=UploadOut,
              summary="Announce a file (name, size, SHA-256); then PUT its chunks")
 def create_upload(survey_id: str, body: UploadIn, ctx: CtxDep, request: Request):
-    up = uploads.create_upload(ctx, survey_id, body.filename, body.size, body.sha256, body.kind, body.role)
+    up = uploads.create_upload(ctx, survey_id, body.filename, body.size, body.sha256, body.kind, body.role,
+                               body.folder)
     return json_response(request, _out(ctx, up), 201, headers={"Location": f"/api/v1/uploads/{up.id}"})
 
 
