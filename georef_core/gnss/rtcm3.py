@@ -50,7 +50,9 @@ from .compressed_files import read_bytes
 from .constants import CLIGHT_M_S, SYSTEMS
 from .gnss_time import SECONDS_PER_WEEK, datetime_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .navigation import NavigationData
+from .frame_selection import take_frames_in_order
 from .observations import RawObservations, ReceiverHeader
+from .ubx_nav_decode import _CRC24Q_TABLE
 
 __all__ = ["Rtcm3Log", "Rtcm3Frames", "StationInfo", "find_rtcm3_frames", "read_rtcm3", "decode_rtcm3_bytes",
            "looks_like_rtcm3", "msm_signal_code", "BitReader"]
@@ -103,19 +105,7 @@ def signal_frequency_hz(system: str, code: str, glonass_fcn: int | None = None) 
 
 
 # ----------------------------------------------------------------------------------------------- framing
-def _crc24q_table() -> np.ndarray:
-    table = np.zeros(256, dtype=np.uint32)
-    for i in range(256):
-        crc = i << 16
-        for _ in range(8):
-            crc <<= 1
-            if crc & 0x1000000:
-                crc ^= 0x1864CFB
-        table[i] = crc & 0xFFFFFF
-    return table
-
-
-_CRC24Q = _crc24q_table()
+_CRC24Q = np.array(_CRC24Q_TABLE, dtype=np.uint32)
 
 
 @dataclass
@@ -178,20 +168,9 @@ def find_rtcm3_frames(data: bytes) -> Rtcm3Frames:
               | buf[starts + lens + 2])
     ok = np.zeros(len(cand), dtype=bool)
     ok[order] = crc == stored
-    good = np.flatnonzero(ok)
-    g_start, g_end = cand[good], end[good]
-    if len(good) > 1 and np.any(g_start[1:] < g_end[:-1]):
-        keep = np.zeros(len(good), dtype=bool)
-        last_end = -1
-        for k in range(len(good)):
-            if g_start[k] >= last_end:
-                keep[k] = True
-                last_end = g_end[k]
-        good = good[keep]
+    good, inside = take_frames_in_order(cand, end, ok)
     starts_ok = cand[good]
     last_end = int(end[good][-1]) if len(good) else 0
-    k = np.searchsorted(starts_ok, cand, side="right") - 1
-    inside = (k >= 0) & (cand < end[good][np.maximum(k, 0)]) if len(good) else np.zeros(len(cand), dtype=bool)
     failed = ~ok & ~inside & known
     n_crc = int(np.count_nonzero(failed & fits))
     n_trunc = int(np.any(failed & ~fits & (cand >= last_end)))

@@ -43,6 +43,7 @@ from .constants import SYSTEMS
 from .frames import geodetic_to_ecef_m
 from .gnss_time import SECONDS_PER_WEEK, datetime_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .navigation import NavigationData
+from .frame_selection import take_frames_in_order
 from .observations import RawObservations, ReceiverHeader
 from .ubx_nav_decode import SfrbxNavDecoder
 
@@ -194,24 +195,10 @@ def find_ubx_frames(data: bytes) -> UbxFrames:
     ck_b = (e_ck & 0xFF).astype(np.uint8) * ck_a - (s2[e_ck] - s2[s])
     ok[fits] = (ck_a == buf[e_ck]) & (ck_b == buf[e_ck + 1])
     ok &= known
-    good = np.flatnonzero(ok)
-    g_start, g_end = cand[good], end[good]
-    if len(good) > 1 and np.any(g_start[1:] < g_end[:-1]):
-        keep = np.zeros(len(good), dtype=bool)
-        last_end = -1
-        for k in range(len(good)):
-            if g_start[k] >= last_end:
-                keep[k] = True
-                last_end = g_end[k]
-        good = good[keep]
+    good, inside = take_frames_in_order(cand, end, ok)
     starts = cand[good]
     last_end = int(end[good][-1]) if len(good) else 0
     # candidates outside accepted frames that failed: corrupt / interleaved frames (or chance B5 62)
-    k = np.searchsorted(starts, cand, side="right") - 1
-    if len(good):
-        inside = (k >= 0) & (cand < end[good][np.maximum(k, 0)])
-    else:                                   # sync bytes but no valid frame at all
-        inside = np.zeros(len(cand), dtype=bool)
     failed = ~ok & ~inside & known
     n_ck = int(np.count_nonzero(failed & fits))
     # the log ends inside a frame: a plausible frame start after the last good frame runs past the end
