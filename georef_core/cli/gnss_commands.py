@@ -43,7 +43,8 @@ def register(sub) -> None:
     p.add_argument("--hold-variance", type=float, metavar="CYC2",
                    help="fix-and-hold: variance of the held ambiguities, cycles^2 (default 0.1 as demo5; "
                         "0.001 as RTKLIB 2.4.3)")
-    p.add_argument("--events", help="CSV of camera trigger times (column gps_time_s); default: events in the rover file")
+    p.add_argument("--events", help="camera trigger times: a CSV (column gps_time_s) or a DJI Timestamp.MRK; "
+                                    "default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_solve)

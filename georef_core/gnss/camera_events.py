@@ -68,12 +68,17 @@ def interpolate_at_events(sol, event_time_s, max_gap_s: float | None = None) -> 
 
 
 def read_event_csv(path) -> np.ndarray:
-    """Camera trigger times from a CSV: a column named gps_time_s (or the first numeric column)."""
+    """Camera trigger times from a CSV (a column named gps_time_s, or the first numeric column) or from a
+    DJI Timestamp.MRK (its exposure times), recognised by content. Times must be finite."""
+    from .dji_mrk import looks_like_mrk, read_mrk
+
     p = Path(path)
     try:
         text = p.read_text()
-    except OSError as exc:
-        raise InputFileError(p, f"cannot read ({exc})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(p, f"cannot read as text ({exc})") from None
+    if looks_like_mrk(text[:4096].encode("utf-8", "replace")):
+        return read_mrk(p).gps_time_s.copy()
     rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#")))
     if not rows:
         raise InputFileError(p, "no event times")
@@ -87,6 +92,8 @@ def read_event_csv(path) -> np.ndarray:
     for n, r in enumerate(rows[start:], start + 1):
         if col >= len(r) or not _is_float(r[col]):
             raise InputFileError(p, f"event time {r[col] if col < len(r) else ''!r} is not a number", n)
+        if not np.isfinite(float(r[col])):
+            raise InputFileError(p, f"event time {r[col].strip()!r} is not a finite number", n)
         out.append(float(r[col]))
     return np.array(out)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from georef_core.gnss.camera_events import interpolate_at_events, read_event_csv
 from georef_core.gnss.ppk import PpkSolution
@@ -56,3 +57,21 @@ def test_event_csv(tmp_path):
         assert "ev.csv" in str(exc) and "line 3" in str(exc)
     else:
         raise AssertionError("bad event time accepted")
+
+
+def test_event_times_must_be_finite_and_mrk_is_read(tmp_path):
+    """nan/inf trigger times are refused naming the file and line; a DJI MRK gives its exposure times."""
+    from georef_core.errors import InputFileError
+    from georef_core.gnss.camera_events import read_event_csv
+
+    p = tmp_path / "events.csv"
+    p.write_text("image,gps_time_s\na.jpg,1400000000.5\nb.jpg,nan\n")
+    with pytest.raises(InputFileError, match=r"events.csv, line 3: event time 'nan' is not a finite number"):
+        read_event_csv(p)
+    p.write_text("gps_time_s\ninf\n")
+    with pytest.raises(InputFileError, match="line 2"):
+        read_event_csv(p)
+    mrk = tmp_path / "x.MRK"
+    mrk.write_text("1\t275295.301059\t[2024]\t   -26,N\t    19,E\t   191,V\t-36.41144502,Lat\t174.63075195,Lon\t"
+                   "170.415,Ellh\t1.492559, 1.368525, 3.180128\t16,Q\n")
+    assert read_event_csv(mrk).tolist() == [2024 * 604800 + 275295.301059]
