@@ -2,7 +2,8 @@
 ``base/``, ``nav/``, ``events.csv``, ``gcp/``) or DJI flight folders as the aircraft writes them.
 
 A DJI flight folder is any folder of the survey that holds a ``Timestamp.MRK`` (found by content, not
-name) beside its photos and, for PPK, the aircraft's raw GNSS log (``*_PPKRAW.bin`` RTCM 3, M4's
+name) beside its photos (or, for a single flight, an MRK in any folder with the photos in ``images/``)
+and, for PPK, the aircraft's raw GNSS log (``*_PPKRAW.bin`` RTCM 3, M4's
 ``.rtk``, a UBX log or the aircraft's ``*_Rinex.obs``) and possibly its navigation file. A survey may
 hold several such folders (battery swaps): they are joined in time order, with the gaps between
 flights reported. The base station's files stay in ``base/`` (one or several: hourly CORS files, a
@@ -133,6 +134,11 @@ def find_dji_flights(survey_dir: Path, max_depth: int = 3) -> list[DjiFlight]:
                 visit(sub, depth + 1)
 
     visit(survey_dir, 0)
+    # an MRK uploaded apart from its photos (e.g. into rover/) with the photos in images/: one flight
+    bare = [f for f in flights if not f.photos]
+    images = survey_dir / "images"
+    if len(bare) == 1 and len(flights) == 1 and images.is_dir():
+        bare[0].photos = [p for p in _visible_files(images) if p.suffix.lower() in IMAGE_SUFFIXES]
     return flights
 
 

@@ -162,3 +162,13 @@ def test_rtcm3_raw_log_solves_like_its_rinex(tmp_path):
     d = np.stack([a[c] - b[c] for c in ("x_ecef_m", "y_ecef_m", "z_ecef_m")], axis=1)
     assert np.abs(d).max() < 1e-3, d
     json.dumps(s_dji)      # the summary stays JSON
+
+
+def test_mrk_apart_from_its_photos_in_the_standard_folders(tmp_path):
+    """The MRK and raw log uploaded into rover/, the photos into images/: still one DJI flight."""
+    times = [T0 + 2.0 * k for k in range(3)]
+    _flight(tmp_path / "s" / "images", times)
+    (tmp_path / "s" / "rover").mkdir()
+    (tmp_path / "s" / "images" / "DJI_0001_Timestamp.MRK").rename(tmp_path / "s" / "rover" / "f_Timestamp.MRK")
+    found = survey_inputs(tmp_path / "s", tmp_path / "out")
+    assert found.layout == "dji" and found.image_names == ["DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"]
