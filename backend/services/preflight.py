@@ -390,7 +390,16 @@ def run(ctx, s, files: list[SurveyFile], site) -> dict:
         sp = file_span(f, flight_ref.get(f.path, any_ref))
         if sp:
             rover_spans.append(sp)
-    if not rover:
+    # photos alone (RTK-tagged or with EXIF GPS): no raw log, no base, no rover/: the pipeline skips the PPK
+    # and georeferences on the photos' own positions (georef_core.steps.gnss_solve.run_survey_gnss)
+    photos_only = not rover and not base and not any(f.path.startswith("rover/") for f in files) \
+        and bool(flight_photos if dji else images_std)
+    if photos_only:
+        problems.append(_problem("warning", "photos-only",
+                                 "no raw GNSS log and no base station: no PPK; the photos' own positions (RTK tags "
+                                 "or EXIF GPS) georeference the survey, to their accuracy. For PPK upload the "
+                                 "aircraft's raw log (*_PPKRAW.bin) and the base observations"))
+    elif not rover:
         if dji:
             problems.append(_problem("error", "missing-rover",
                                      "no rover raw log: the flight folders hold no *_PPKRAW.bin (RTCM 3), UBX or RINEX "
@@ -416,7 +425,7 @@ def run(ctx, s, files: list[SurveyFile], site) -> dict:
 
     # ---- base
     base_join = None
-    if not base:
+    if not base and not photos_only:
         problems.append(_problem("error", "missing-base", "no base station observations"))
     elif len(base) > 1:
         base_join = join_report("base", base, lambda f: file_span(f, any_ref))
@@ -432,7 +441,9 @@ def run(ctx, s, files: list[SurveyFile], site) -> dict:
     rtcm_eph = [f for f in nav_sources if f.kind == "rtcm3" and (f.meta or {}).get("ephemeris_messages")]
     nav_state = "files" if nav_rinex else ("logs" if (ubx_nav or rtcm_eph) else "none")
     few_eph = False
-    if nav_state == "none":
+    if photos_only:
+        nav_state = "photos-only"
+    elif nav_state == "none":
         raw_no_eph = [f for f in rover + base if f.kind == "rtcm3"]
         if raw_no_eph:
             problems.append(_problem("error", "missing-navigation",
@@ -523,7 +534,7 @@ def run(ctx, s, files: list[SurveyFile], site) -> dict:
     images = flight_photos if dji else images_std
     if not images:
         problems.append(_problem("warning", "no-images", "no images: only the GNSS trajectory can be computed"))
-    elif not dji:
+    elif not dji and not photos_only:
         _event_problems(by_kind, rover, images, problems)
 
     # ---- points
@@ -611,6 +622,8 @@ def summary_line(dji, images, rover, base, nav_rinex, nav_state, few_eph, pts) -
     elif nav_state == "logs":
         parts.append("navigation file advised (few ephemerides in the logs)" if few_eph
                      else "no navigation file needed")
+    elif nav_state == "photos-only":
+        parts.append("photo positions only (no PPK)")
     else:
         parts.append("no navigation file")
     if pts is not None:

@@ -147,7 +147,7 @@ def api(platform):
     add_user(platform, f"dji-{platform.shape}@example.org", org_admin=True)
     a = Api(platform, f"dji-{platform.shape}@example.org")
     site = a.post("/api/v1/sites", json={"name": "DJI", "crs": "EPSG:2193"}).json()
-    a.site_id = site["id"]
+    a.site_id, a.platform = site["id"], platform
     return a
 
 
@@ -189,7 +189,7 @@ def upload_three_bases(api, sid):
 # ----------------------------------------------------------------------------------------------- tests
 
 
-def test_two_flights_zip_and_three_base_files(api):
+def test_two_flights_zip_and_three_base_files(api, tmp_path):
     sid = new_survey(api, "two flights, zip")
     files = {f"DCIM/100_0004/{k}": v for k, v in flight("100_0004", SOW0).items()}
     files |= {f"DCIM/100_0005/{k}": v for k, v in flight("100_0005", SOW0 + 609).items()}
@@ -226,10 +226,27 @@ def test_two_flights_zip_and_three_base_files(api):
     assert codes["rover-files-joined"]["message"].startswith("rover: 2 RTCM 3 logs, 2018-10-24 11:19-11:30")
     assert "several-rover-files" not in codes and "several-base-files" not in codes
     assert not {"missing-navigation", "no-time-overlap", "partial-time-overlap", "mrk-photo-mismatch"} & set(codes)
-    # the pre-flight reads what the pipeline reads: the step inputs include the flight folders
-    from backend.services import steps_catalog
+    # the worker's survey folder of the gnss step, read by the pipeline: two DJI flights joined, their
+    # photos tied to their MRK by folder, the three base files
+    found = materialised_inputs(api, sid, tmp_path)
+    assert found.layout == "dji" and [f.folder.name for f in found.flights] == ["100_0004", "100_0005"]
+    assert len(found.image_names) == 8 and [p.name for p in found.rover_files] == ["100_0004_PPKRAW.bin",
+                                                                                 "100_0005_PPKRAW.bin"]
+    assert sorted(p.name for p in found.base_files) == ["base_1.obs", "base_2.obs", "base_3.obs"]
+    assert any("600 s between flights 100_0004 and 100_0005" in w for w in found.warnings)
 
-    assert "flights/" in steps_catalog.BY_NAME["gnss"].inputs and "flights/" in steps_catalog.BY_NAME["georef"].inputs
+
+def materialised_inputs(api, sid, tmp_path):
+    """The survey folder the worker builds for the gnss step (worker.tasks.materialise from the stored
+    files), read by georef_core.steps.survey_inputs."""
+    from backend.storage import storage_for
+    from georef_core.steps.survey_inputs import survey_inputs
+    from worker.tasks import materialise
+
+    run = {"inputs": {p: f["sha256"] for p, f in files_of(api, sid).items()}, "outputs": [],
+           "site": {"crs": "EPSG:2193"}}
+    survey_dir, out_dir = materialise(storage_for(api.platform.settings), run, "gnss", tmp_path / "run")
+    return survey_inputs(survey_dir, out_dir)
 
 
 def test_flight_files_sent_one_by_one_with_their_folder(api):
@@ -282,7 +299,7 @@ def test_rtcm3_kinds_for_rover_base_and_nav(api):
     assert c["summary"] == ("no photos, RTCM 3 rover log, base: 1 RTCM 3 log, no navigation file needed")
 
 
-def test_bad_dji_inputs_named(api):
+def test_bad_dji_inputs_named(api, tmp_path):
     sid = new_survey(api, "bad inputs")
     upload_three_bases(api, sid)
     # count: 4 photos, 3 exposures -> the MRK does not belong to these photos
@@ -311,6 +328,11 @@ def test_bad_dji_inputs_named(api):
     assert {"flights/D/DJI_0002.JPG", "flights/D/DJI_0001.JPG"} <= set(m["files"])
     assert "photos from two aircraft" in m["message"]
     assert c["summary"].startswith("4 flights, 15 photos, MRK 16 exposures, 4 RTCM 3 rover logs")
+    # what the pre-flight calls an error stops the pipeline too
+    from georef_core.errors import InputFileError
+
+    with pytest.raises(InputFileError, match="more than one camera"):
+        materialised_inputs(api, sid, tmp_path)
 
 
 def test_ppkraw_without_ephemerides(api):
@@ -337,6 +359,18 @@ def test_ppkraw_without_ephemerides(api):
     c, codes = check(api, sid)
     assert "missing-navigation" not in codes and c["ok"], c
     assert c["summary"].endswith("base: 3 RINEX files, navigation: 1 RINEX file")
+
+
+def test_rtk_photos_alone(api):
+    """A flight flown with RTK on (photos + MRK, no raw log) and no base: no PPK, not an error."""
+    sid = new_survey(api, "RTK photos alone")
+    files = {f"DCIM/100_0007/{k}": v for k, v in flight("100_0007", SOW0).items() if not k.endswith(".bin")}
+    ok(upload_bytes(api, sid, "rtk.zip", zip_of(files)))
+    c, codes = check(api, sid)
+    assert c["ok"], c["problems"]
+    assert codes["photos-only"]["severity"] == "warning"
+    assert not {"missing-rover", "missing-base", "missing-navigation"} & set(codes)
+    assert c["summary"] == "1 flight, 4 photos, MRK 4 exposures, no rover log, no base, photo positions only (no PPK)"
 
 
 def test_few_ephemerides_warned(api):

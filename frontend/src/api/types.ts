@@ -82,6 +82,7 @@ export interface Upload {
   sha256: string;
   kind: string | null;
   role: string | null;
+  folder?: string | null;
   state: "open" | "verifying" | "complete" | "failed" | "aborted" | string;
   received_bytes: number;
   error: string | null;
@@ -105,6 +106,8 @@ export interface Check {
   warnings: number;
   problems: CheckProblem[];
   files: Record<string, number>;
+  /** What was found, in one line ("2 flights, 419 photos, MRK 419 exposures, ..."). */
+  summary?: string;
 }
 
 export type RunState = "queued" | "running" | "succeeded" | "failed" | "cancelled";

@@ -1,8 +1,9 @@
 /**
  * Recognise survey files by their content (the first bytes), not their names: RINEX observation and
- * navigation files (plain, Hatanaka CRINEX, gzip, Unix compress), u-blox UBX logs, JPEG/TIFF photos,
+ * navigation files (plain, Hatanaka CRINEX, gzip, Unix compress), u-blox UBX logs, RTCM 3 logs (a DJI
+ * aircraft's *_PPKRAW.bin, base receiver logs), DJI *_Timestamp.MRK exposure files, JPEG/TIFF photos,
  * ground-point tables, ODM gcp_list.txt, camera-event tables and zip archives. The folder a file was
- * dropped in only breaks ties (rover vs base observation files).
+ * dropped in only breaks ties (rover vs base observation files) and ties a DJI flight's files together.
  */
 
 import { type Compression, inflateHead } from "./decompress";
@@ -12,14 +13,22 @@ import {
   type EventsTable, type GcpListTable, type PointsTable,
   looksLikeEventsCsv, looksLikeGcpList, looksLikePointsCsv, parseEventsCsv, parseGcpList, parsePointsCsv,
 } from "./tables";
-import { type UbxSummary, looksLikeUbx, scanUbx } from "./ubx";
+import { type MrkSummary, looksLikeMrk, parseMrk } from "./mrk";
+import { type Rtcm3Summary, looksLikeRtcm3, scanRtcm3 } from "./rtcm3";
+import { type UbxSummary, looksLikeUbx, scanUbx, ubxChecksum } from "./ubx";
 
 export type FileKind =
-  | "rinex-obs" | "rinex-nav" | "rinex-met" | "ubx" | "image" | "events" | "points" | "gcp_list" | "archive"
-  | "survey_metadata" | "readme" | "unknown";
+  | "rinex-obs" | "rinex-nav" | "rinex-met" | "ubx" | "rtcm3" | "dji-mrk" | "image" | "events" | "points" | "gcp_list"
+  | "archive" | "survey_metadata" | "readme" | "unknown";
+
+/** Kinds of GNSS observation files (a receiver's log: they have a role, rover or base). */
+export const OBSERVATION_KINDS: FileKind[] = ["rinex-obs", "ubx", "rtcm3"];
+export const isObservation = (k: FileKind): boolean => OBSERVATION_KINDS.includes(k);
+/** What a DJI flight folder holds that is uploaded with it (kind=flight): photos, the MRK, raw logs, nav. */
+export const FLIGHT_KINDS: FileKind[] = ["image", "dji-mrk", "rtcm3", "ubx", "rinex-obs", "rinex-nav"];
 
 /** The `kind` of POST /surveys/{id}/uploads. */
-export type UploadKind = "rover" | "base" | "nav" | "images" | "events" | "points" | "gcp_list" | "archive" | "survey_metadata";
+export type UploadKind = "rover" | "base" | "nav" | "images" | "events" | "points" | "gcp_list" | "archive" | "survey_metadata" | "flight";
 
 export type ObsRole = "rover" | "base";
 
@@ -32,6 +41,8 @@ export interface Sniffed {
   rinex?: RinexHeader;
   navFirstMs?: number | null;
   ubx?: UbxSummary;
+  rtcm3?: Rtcm3Summary;
+  mrk?: MrkSummary;
   image?: { format: "jpeg" | "tiff"; capture: ExifTime | null };
   points?: PointsTable;
   events?: EventsTable;
@@ -104,8 +115,21 @@ export function classify(path: string, _raw: Uint8Array, data: Uint8Array, compr
     return { ...base, kind: "image", description: "TIFF image", image: { format: "tiff", capture: exifCaptureTime(data) } };
   }
   if (!isMostlyText(data)) {
-    if (looksLikeUbx(data)) {
-      const ubx = scanUbx(data);
+    // UBX and RTCM 3 told apart by which framing covers more of the bytes (a chance B5 62 or D3 inside
+    // the other format's frames does not decide it), as the server does
+    const ubx = scanUbx(data);
+    const ubxBytes = looksLikeUbx(data) ? ubxBytesOf(data) : 0;
+    const rtcm3 = scanRtcm3(data);
+    if (looksLikeRtcm3(rtcm3, ubxBytes)) {
+      const systems = rtcm3.systems.length ? `, ${rtcm3.systems.join("+")}` : "";
+      const eph = rtcm3.ephemerides ? ", with ephemerides" : "";
+      return {
+        ...base, kind: "rtcm3", rtcm3, roleHint: roleHintFromPath(path),
+        description: `RTCM 3 log${systems}${eph}${packing(compression, false)}`,
+        problem: compression !== "none" ? `${compression}-packed RTCM 3 logs are not accepted: send it unpacked` : undefined,
+      };
+    }
+    if (ubxBytes > 0) {
       return { ...base, kind: "ubx", ubx, roleHint: roleHintFromPath(path), description: `u-blox UBX log${packing(compression, false)}` };
     }
     return base;
@@ -132,6 +156,13 @@ export function classify(path: string, _raw: Uint8Array, data: Uint8Array, compr
     return { ...base, description: `RINEX ${v} file of an unknown type` };
   }
   const utext = utf8.decode(data);
+  if (looksLikeMrk(utext)) {
+    const mrk = parseMrk(utext);
+    return {
+      ...base, kind: "dji-mrk", mrk, description: `DJI Timestamp.MRK (${mrk.exposures} exposures)`,
+      problem: mrk.badLines.length ? `damaged MRK: line ${mrk.badLines[0]} does not read as an exposure` : undefined,
+    };
+  }
   const meta = surveyMetadata(utext);
   if (meta) return { ...base, kind: "survey_metadata", description: `survey metadata${meta.crs ? ` (${meta.crs})` : ""}` };
   // A table cut at SNIFF_BYTES loses its last row: drop the partial line unless the file was read whole.
@@ -175,12 +206,37 @@ export function surveyMetadata(text: string): { crs: string | null } | null {
   }
 }
 
-/** The upload `kind` for a recognised file, or null when it is not sent. */
+/** Bytes inside valid UBX frames of a buffer. */
+function ubxBytesOf(data: Uint8Array): number {
+  let n = 0;
+  let i = 0;
+  while (i + 8 <= data.length) {
+    if (data[i] !== 0xb5 || data[i + 1] !== 0x62) {
+      i++;
+      continue;
+    }
+    const len = data[i + 4] | (data[i + 5] << 8);
+    const end = i + 6 + len;
+    if (end + 2 > data.length) break;
+    const [a, b] = ubxChecksum(data, i + 2, end);
+    if (a === data[end] && b === data[end + 1]) {
+      n += len + 8;
+      i = end + 2;
+    } else i++;
+  }
+  return n;
+}
+
+/** The upload `kind` for a recognised file, or null when it is not sent (a file of a DJI flight folder
+ * goes with kind=flight: see flightOf in preflight.ts). */
 export function uploadKindOf(s: Sniffed, role: ObsRole | null): UploadKind | null {
   switch (s.kind) {
     case "rinex-obs":
     case "ubx":
+    case "rtcm3":
       return role;
+    case "dji-mrk":
+      return "flight";
     case "rinex-nav":
       return "nav";
     case "image":
@@ -206,7 +262,7 @@ export async function sniffFile(file: Blob, path: string, bytes = SNIFF_BYTES): 
   const { compression, data } = await inflateHead(raw, bytes);
   const s = classify(path, raw, data, compression);
   // Tables are small: when the head held the whole file they are complete; else re-read them whole.
-  if ((s.kind === "points" || s.kind === "events" || s.kind === "gcp_list") && file.size > bytes && file.size < 32 * 1024 * 1024) {
+  if ((s.kind === "points" || s.kind === "events" || s.kind === "gcp_list" || s.kind === "dji-mrk") && file.size > bytes && file.size < 32 * 1024 * 1024) {
     const all = new Uint8Array(await file.slice(0, file.size).arrayBuffer());
     const whole = compression === "none" ? all : (await inflateHead(all, 64 * 1024 * 1024)).data;
     return classify(path, all, whole, compression);

@@ -19,6 +19,8 @@ export interface UploadItem {
   path: string;
   kind: UploadKind;
   role: ObsRole | null;
+  /** The folder a DJI flight's file was in (sent with kind=flight). */
+  folder?: string;
   size: number;
   state: ItemState;
   hashed: number;
@@ -77,11 +79,11 @@ export class UploadQueue {
     private chunkBytes = DEFAULT_CHUNK_BYTES,
   ) {}
 
-  add(files: { file: File; path: string; kind: UploadKind; role: ObsRole | null }[]): void {
+  add(files: { file: File; path: string; kind: UploadKind; role: ObsRole | null; folder?: string }[]): void {
     for (const f of files) {
       const key = fileKey(this.surveyId, f.path, f.file.size, f.file.lastModified);
       if (this.items.some((i) => i.key === key)) continue;
-      this.items.push({ key, file: f.file, path: f.path, kind: f.kind, role: f.role, size: f.file.size, state: "waiting", hashed: 0, sent: 0, attempts: 0 });
+      this.items.push({ key, file: f.file, path: f.path, kind: f.kind, role: f.role, folder: f.folder, size: f.file.size, state: "waiting", hashed: 0, sent: 0, attempts: 0 });
     }
     this.onChange();
   }
@@ -178,6 +180,7 @@ export class UploadQueue {
       if (!up) {
         up = await api.post<Upload>(`/surveys/${this.surveyId}/uploads`, {
           filename: item.path.split("/").pop(), size: item.size, sha256: item.sha256, kind: item.kind, role: item.role ?? undefined,
+          folder: item.folder,
         }, { signal });
       }
       item.uploadId = up.id;

@@ -10,8 +10,8 @@ import { ErrorBox, Loading, Note, ProgressBar } from "../components/ui";
 import { useLoad } from "../hooks";
 import { formatBytes, formatDuration } from "../lib/format";
 import { scanObservationFile } from "../lib/obsScan";
-import { type CheckedFile, type Problem, assignRoles, isoUtc, preflight, spanOf } from "../lib/preflight";
-import { type ObsRole, type Sniffed, sniffFile, uploadKindOf } from "../lib/sniff";
+import { type CheckedFile, type Problem, assignRoles, isoUtc, markFlights, preflight, spanOf, summarise } from "../lib/preflight";
+import { type ObsRole, type Sniffed, type UploadKind, isObservation, sniffFile, uploadKindOf } from "../lib/sniff";
 import { type PickedFile, filesFromDrop, filesFromInput, isClutter } from "../upload/collect";
 import { type UploadItem, UploadQueue } from "../upload/uploader";
 import { useStartRun } from "./startRun";
@@ -22,11 +22,17 @@ interface LocalFile extends CheckedFile {
   include: boolean;
 }
 
+/** The upload kind of a local file: a DJI flight folder's files go with kind=flight and their folder. */
+function kindToSend(f: LocalFile): UploadKind | null {
+  return f.flight ? "flight" : uploadKindOf(f.sniff, f.role);
+}
+
 const GROUPS: [string, string, (f: LocalFile) => boolean][] = [
-  ["rover", "Drone GNSS (rover)", (f) => (f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx") && f.role === "rover"],
-  ["base", "Base station", (f) => (f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx") && f.role === "base"],
-  ["obs", "GNSS observations — which receiver?", (f) => (f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx") && !f.role],
-  ["nav", "Navigation", (f) => f.sniff.kind === "rinex-nav"],
+  ["flights", "DJI flights (Timestamp.MRK, raw logs)", (f) => !!f.flight && f.sniff.kind !== "image"],
+  ["rover", "Drone GNSS (rover)", (f) => isObservation(f.sniff.kind) && !f.flight && f.role === "rover"],
+  ["base", "Base station", (f) => isObservation(f.sniff.kind) && !f.flight && f.role === "base"],
+  ["obs", "GNSS observations — which receiver?", (f) => isObservation(f.sniff.kind) && !f.flight && !f.role],
+  ["nav", "Navigation", (f) => f.sniff.kind === "rinex-nav" && !f.flight],
   ["images", "Photos", (f) => f.sniff.kind === "image"],
   ["points", "Ground points and measurements", (f) => ["points", "gcp_list", "events", "survey_metadata"].includes(f.sniff.kind)],
   ["archive", "Archives", (f) => f.sniff.kind === "archive"],
@@ -88,6 +94,7 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
       const all = [...local, ...sniffed];
       // Rover candidates: read them whole for the camera events and the true time span.
       const obs = all.filter((f) => (f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx") && f.scan === undefined);
+      markFlights(all);
       await mapLimit(obs, 2, async (f) => {
         try {
           f.scan = await scanObservationFile(f.file, f.sniff);
@@ -96,7 +103,7 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
         }
       });
       assignRoles(all);
-      for (const f of all) f.include = uploadKindOf(f.sniff, f.role) !== null || f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx";
+      for (const f of all) f.include = kindToSend(f) !== null || isObservation(f.sniff.kind);
       setLocal(all);
     } catch (e) {
       setError(e as Error);
@@ -106,10 +113,11 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
   };
 
   const problems: Problem[] = useMemo(() => (local.length ? preflight(local.filter((f) => f.include || f.sniff.kind === "unknown")) : []), [local]);
+  const summary = useMemo(() => (local.length ? summarise(local.filter((f) => f.include)) : ""), [local]);
   const errors = problems.filter((p) => p.severity === "error");
-  const toSend = local.filter((f) => f.include && uploadKindOf(f.sniff, f.role));
+  const toSend = local.filter((f) => f.include && kindToSend(f));
   const sendBytes = toSend.reduce((a, f) => a + f.size, 0);
-  const unassigned = local.some((f) => f.include && (f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx") && !f.role);
+  const unassigned = local.some((f) => f.include && isObservation(f.sniff.kind) && !f.flight && !f.role);
 
   const setRole = (f: LocalFile, role: ObsRole) => {
     f.role = role;
@@ -117,7 +125,7 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
   };
 
   const startUpload = () => {
-    queue.add(toSend.map((f) => ({ file: f.file, path: f.path, kind: uploadKindOf(f.sniff, f.role)!, role: f.role })));
+    queue.add(toSend.map((f) => ({ file: f.file, path: f.path, kind: kindToSend(f)!, role: f.flight ? null : f.role, folder: f.flight ?? undefined })));
     finishedOnce.current = false;
     queue.start();
   };
@@ -164,6 +172,7 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
           <h2 id="found-title">What was found</h2>
           <FileGroups files={local} onRole={setRole} onToggle={(f) => { f.include = !f.include; setLocal([...local]); }} locked={queue.running || queue.items.length > 0} />
           <h3>Before uploading</h3>
+          {summary ? <p class="check-summary" data-testid="local-summary">Found: {summary}</p> : null}
           <ProblemList problems={problems} empty="Everything needed for processing is there." />
           {queue.items.length === 0 ? (
             <div class="actions">
@@ -188,6 +197,7 @@ export function UploadView({ ctx }: { ctx: SurveyContext }) {
         {serverHasData && check.data ? (
           <>
             <h3>Server check</h3>
+            {check.data.summary ? <p class="check-summary" data-testid="server-summary">Found: {check.data.summary}</p> : null}
             <ProblemList problems={check.data.problems} empty="Ready to process." />
           </>
         ) : null}
@@ -213,7 +223,7 @@ function FileGroups({ files, onRole, onToggle, locked }: { files: LocalFile[]; o
                   <span class="file-path" title={f.path}>{f.path}</span>
                   <span class="file-desc">{f.sniff.description}{detailOf(f)}</span>
                   <span class="file-size">{formatBytes(f.size)}</span>
-                  {f.sniff.kind === "rinex-obs" || f.sniff.kind === "ubx" ? (
+                  {isObservation(f.sniff.kind) && !f.flight ? (
                     <span class="role-pick" role="radiogroup" aria-label={`Receiver of ${f.path}`}>
                       {(["rover", "base"] as const).map((r) => (
                         <label key={r} class="radio">
@@ -243,6 +253,7 @@ function detailOf(f: LocalFile): string {
   if (span) parts.push(`${isoUtc(span.firstMs).slice(0, 16)} – ${isoUtc(span.lastMs).slice(11, 16)} (${formatDuration((span.lastMs - span.firstMs) / 1000)})`);
   if (f.scan?.events) parts.push(`${f.scan.events} camera events`);
   if (f.sniff.rinex?.markerName) parts.push(`marker ${f.sniff.rinex.markerName}`);
+  if (f.flight !== undefined && f.flight !== null) parts.push(`flight ${f.flight || "(top folder)"}`);
   return parts.length ? ` · ${parts.join(" · ")}` : "";
 }
 
@@ -358,7 +369,7 @@ function ServerFiles({ files, surveyId, canEdit, onChange }: { files: SurveyFile
                     <td>{f.kind}{f.role ? ` (${f.role})` : ""}</td>
                     <td class="num">{formatBytes(f.size)}</td>
                     <td class="row-actions">
-                      {canEdit && (f.kind === "rinex-obs" || f.kind === "ubx") ? (
+                      {canEdit && ["rinex-obs", "ubx", "rtcm3"].includes(f.kind) && !f.path.startsWith("flights/") ? (
                         <button type="button" class="link small" onClick={() => act(() => api.patch(`/surveys/${surveyId}/files/${f.id}`, { role: f.role === "rover" ? "base" : "rover" }))}>
                           make {f.role === "rover" ? "base" : "rover"}
                         </button>
