@@ -1,0 +1,92 @@
+"""The fixed cost of `georef gnss solve`: what its process imports, the warm-up that compiles every numba kernel
+ahead (georef_core/warmup.py, run by `make install`), the first-run notice and the solve's progress stages."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from georef_core import warmup
+from georef_core.cli.main import main
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "gnss" / "gsi_0759_3040"
+ROVER, BASE, NAV = DATA / "07590920.05o", DATA / "30400920.05o", DATA / "07590920.05n"
+
+# heavy packages a GNSS solve has no use for (photogrammetry, rasters, plotting, web stack, pandas)
+HEAVY = ("pycolmap", "open3d", "matplotlib", "rasterio", "cv2", "laspy", "shapely", "reportlab", "pandas",
+         "fastapi", "sqlalchemy", "celery", "backend", "worker")
+
+_PROBE = """
+import sys, types
+import numpy as np
+from georef_core.cli.main import main
+try:
+    main(["gnss", "solve", "--help"])
+except SystemExit:
+    pass
+from georef_core.steps import gnss_solve            # what cmd_solve imports
+from georef_core.gnss.solution_io import write_parquet
+n = 3
+sol = types.SimpleNamespace(
+    time_s=np.arange(n, dtype=float), receiver_time_s=np.arange(n, dtype=float), status=np.array([1, 2, 0]),
+    position_ecef_m=np.tile([-3978241.958, 3382840.234, 3649900.853], (n, 1)), covariance_ecef_m2=np.tile(np.eye(3), (n, 1, 1)),
+    velocity_ecef_m_s=np.zeros((n, 3)), velocity_covariance_m2_s2=np.tile(np.eye(3), (n, 1, 1)),
+    n_sats=np.array([8, 7, 0]), ratio=np.array([5.0, 1.0, 0.0]), age_s=np.zeros(n),
+    residuals_m=np.full((n, 2, 1), 0.001), sat_ids=["G01", "G02"])
+write_parquet(sys.argv[1], sol)
+print(" ".join(sorted({m.split(".")[0] for m in sys.modules})))
+"""
+
+
+def test_gnss_command_imports_nothing_heavy(tmp_path):
+    out = subprocess.run([sys.executable, "-c", _PROBE, str(tmp_path / "t.parquet")], capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert not [m for m in HEAVY if m in out], f"imported by the gnss command path: {[m for m in HEAVY if m in out]}"
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(tmp_path / "t.parquet")
+    assert table.column("quality").to_pylist() == ["fix", "float", "none"]
+    assert table.schema.field("status").type == "int8" and table.schema.field("x_ecef_m").type == "double"
+    res = pq.read_table(tmp_path / "t_residuals.parquet")
+    assert res.column("sat").to_pylist() == ["G01", "G02"] * 3
+
+
+def test_warmup_covers_every_kernel():
+    """Every numba dispatcher of georef_core is an entry point of a warm-up stage or called (transitively)
+    by one, so `georef warmup` leaves nothing for a first solve to compile. Checked on the bytecode: nothing
+    is compiled here."""
+    found = warmup.discover_dispatchers()
+    assert len(found) > 50 and "georef_core.gnss.rtk_kernels.filter_pass" in found
+    entry = [n for st in warmup.STAGES for n in st.entry_points]
+    assert not [n for n in entry if n not in found], "a stage names a kernel that no longer exists"
+    covered = warmup.covered(entry, found)
+    assert sorted(set(found) - covered) == [], "kernels no warm-up stage reaches: add them to warmup.STAGES"
+    assert all(d._cache is not None and type(d._cache).__name__ != "NullCache" for d in found.values()), \
+        "every kernel is @njit(cache=True)"
+
+
+def test_warmup_callee_scan_follows_module_attributes():
+    found = warmup.discover_dispatchers()
+    names = {warmup.qualified_name(d) for d in warmup.callees(found["georef_core.gnss.rtk_kernels.filter_pass"])}
+    assert "georef_core.gnss.rtk_kernels.resolve_epoch" in names
+    assert "georef_core.gnss.ambiguity_kernels.resolve" in warmup.covered(
+        ["georef_core.gnss.rtk_kernels.filter_pass"], found)
+
+
+def test_first_run_notice_and_solve_progress(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(warmup, "gnss_kernels_cached", lambda: False)
+    rc = main(["gnss", "solve", str(ROVER), str(BASE), str(NAV), "--out", str(tmp_path / "s.pos"), "--freq", "l1",
+               "--filter", "combined"])
+    err = capsys.readouterr().err
+    assert rc == 0 and "first run: compiling the GNSS kernels" in err
+
+    from georef_core.gnss.rtk_options import RtkOptions
+    from georef_core.steps.gnss_solve import _solve_progress, run_gnss_solve
+
+    seen = []
+    run_gnss_solve(ROVER, BASE, [NAV], tmp_path / "p.pos", RtkOptions(n_bands=1),
+                   progress=_solve_progress(lambda *a: seen.append(a)))
+    assert [(d, t) for _, d, t in seen] == [(0, 4), (1, 4), (2, 4), (3, 4)]
+    assert seen[0][0].startswith("gnss: reading the files (first run: compiling the kernels")
+    assert "backward pass" in seen[3][0]
