@@ -35,7 +35,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_problem_handlers(app)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_credentials=True,
-                           allow_methods=["*"], allow_headers=["*"], expose_headers=["ETag", "Link", "X-Total-Count"])
+                           allow_methods=["*"], allow_headers=["*"], expose_headers=["ETag", "Link", "X-Total-Count", "Retry-After"])
 
     app.add_middleware(SecurityHeaders)
     if settings.freeze_heap:

@@ -19,7 +19,10 @@ import zipfile
 from pathlib import Path
 
 DEMO_EMAIL = "demo@georef.local"
-DEMO_PASSWORD = "georef-demo-2024"
+# the password policy (core/passwords.py) refuses passwords containing the e-mail's name ("demo"):
+# the earlier demo password is replaced on start where a data folder still has it
+DEMO_PASSWORD = "quarry-flight-2024"
+OLD_DEMO_PASSWORDS = ("georef-demo-2024",)
 
 
 def _zip_survey(folder: Path) -> bytes:
@@ -30,6 +33,16 @@ def _zip_survey(folder: Path) -> bytes:
             if f.is_file() and not rel.startswith(("truth/", "ppk/")):
                 z.write(f, rel)
     return buf.getvalue()
+
+
+def _renew_demo_password(s, user) -> None:
+    """A demo account made by an earlier version keeps working with the password printed now."""
+    from .core import security
+
+    for old in OLD_DEMO_PASSWORDS:
+        if security.verify_password(user.password_hash, old):
+            user.password_hash = security.hash_password(DEMO_PASSWORD)
+            return
 
 
 def bootstrap_demo(settings, full: bool, seed: int) -> str | None:
@@ -46,6 +59,8 @@ def bootstrap_demo(settings, full: bool, seed: int) -> str | None:
     storage = storage_for(settings)
     with db.session() as s:
         uid = s.scalar(select(User.id).where(User.email == DEMO_EMAIL))
+        if uid:
+            _renew_demo_password(s, s.get(User, uid))
         if uid and s.scalar(select(SiteRole.site_id).where(SiteRole.user_id == uid).limit(1)):
             return None   # already set up
         if uid is None:

@@ -79,7 +79,7 @@ def setup(data_dir: Path, pg: bool, full: bool) -> tuple[dict, list[str], str]:
     s = db.sessionmaker()
     with db.session() as t:
         org = accounts.create_organisation(t, "Bench")
-        accounts.create_user(t, org.id, "bench@example.org", "bench-password-1", "bench", True)
+        accounts.create_user(t, org.id, "bench@example.org", "load-test-secret-1", "bench", True)
     from sqlalchemy import select
 
     from backend.models import User

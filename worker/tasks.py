@@ -383,7 +383,8 @@ def deliver_webhook(self, delivery_id: str) -> str:
 
     settings, db, storage = _env()
     try:
-        return deliver(db, delivery_id, settings.webhook_timeout_s, settings.webhook_max_attempts)
+        return deliver(db, delivery_id, settings.webhook_timeout_s, settings.webhook_max_attempts,
+                       settings.webhook_allowed_networks)
     except TransientDeliveryError as exc:
         raise self.retry(exc=exc, countdown=min(3600, 2 ** self.request.retries * 5))
 

@@ -60,10 +60,24 @@ def page_response(request: Request, page: Page, schema: type[BaseModel]) -> Resp
                          headers=headers)
 
 
+_UNSAFE_FILENAME = re.compile(r"[^A-Za-z0-9._ -]")
+
+
+def attachment(filename: str) -> str:
+    """Content-Disposition of a download: an ASCII name without quotes or separators (a name never
+    breaks out of the header), the exact name as RFC 5987 filename* when it differs."""
+    from urllib.parse import quote
+
+    plain = _UNSAFE_FILENAME.sub("_", filename)[:200].strip() or "download"
+    if plain == filename:
+        return f'attachment; filename="{plain}"'
+    return f"attachment; filename=\"{plain}\"; filename*=UTF-8''{quote(filename[:200], safe='')}"
+
+
 def bytes_response(request: Request, body: bytes, media_type: str, etag: str, filename: str | None = None) -> Response:
     h = {"ETag": etag, "Cache-Control": "private, max-age=0, must-revalidate"}
     if filename:
-        h["Content-Disposition"] = f'attachment; filename="{filename}"'
+        h["Content-Disposition"] = attachment(filename)
     if if_none_match_hits(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=h)
     return Response(body, media_type=media_type, headers=h)
@@ -102,7 +116,7 @@ def blob_response(request: Request, storage: Storage, sha256: str, size: int, me
     etag = f'"{sha256[:32]}"'
     headers = {"ETag": etag, "Accept-Ranges": "bytes", "Cache-Control": "private, max-age=0, must-revalidate"}
     if filename:
-        headers["Content-Disposition"] = f'attachment; filename="{filename}"'
+        headers["Content-Disposition"] = attachment(filename)
     if if_none_match_hits(request.headers.get("if-none-match"), etag):
         return Response(status_code=304, headers=headers)
     key = blob_key(sha256)

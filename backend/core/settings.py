@@ -5,14 +5,16 @@ variable at all; the production shape (docker-compose.yml) sets the database, br
 
 from __future__ import annotations
 
+import ipaddress
+import json
 import os
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import Field, IPvAnyNetwork, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class Settings(BaseSettings):
@@ -47,6 +49,16 @@ class Settings(BaseSettings):
     # full garbage collections stay short (core/heap_freeze.py; docs/deploy.md)
     freeze_heap: bool = True
 
+    # --- logins (docs/security.md): failed attempts are counted per account and per client address in the
+    # database (every API process sees them); past the free attempts each further failure doubles the wait
+    # (429 with Retry-After), up to login_backoff_max_s; counts are forgotten after login_failure_memory_s
+    # without a failure, and an account's on a successful login
+    login_max_failures_per_account: int = Field(default=5, ge=1)
+    login_max_failures_per_client: int = Field(default=20, ge=1)
+    login_backoff_base_s: float = Field(default=1.0, gt=0)
+    login_backoff_max_s: float = Field(default=900.0, gt=0)
+    login_failure_memory_s: float = Field(default=3600.0, gt=0)
+
     def resolved_max_concurrent_reads(self) -> int:
         if self.max_concurrent_reads > 0:
             return self.max_concurrent_reads
@@ -72,6 +84,21 @@ class Settings(BaseSettings):
     new_data_debounce_s: float = 300.0
     webhook_timeout_s: float = 10.0
     webhook_max_attempts: int = 8
+    # webhook targets must be public addresses; networks listed here are allowed too (an on-premise GIS
+    # server): "10.20.0.0/16,192.168.5.0/24" or a JSON list. Default: none (docs/security.md)
+    webhook_allowed_networks: Annotated[list[IPvAnyNetwork], NoDecode] = Field(default_factory=list)
+
+    @field_validator("webhook_allowed_networks", mode="before")
+    @classmethod
+    def _split_networks(cls, v):
+        if isinstance(v, str):
+            text = v.strip()
+            if text.startswith("["):
+                return json.loads(text)
+            return [x for x in text.replace(",", " ").split() if x]
+        if isinstance(v, (ipaddress.IPv4Network, ipaddress.IPv6Network)):
+            return [v]
+        return v
 
     def resolved_database_url(self) -> str:
         if self.database_url:

@@ -1,12 +1,12 @@
 """SQLAlchemy 2 typed ORM models: one module per area, every table registered on Base.metadata."""
 
-from .accounts import ApiToken, Organisation, User, UserSession
+from .accounts import ApiToken, LoginThrottle, Organisation, User, UserSession
 from .base import Base
 from .runs import Run, RunLog, RunOutput, RunStep, VolumeMeasurement
 from .sites import ROLES, Schedule, Site, SiteRole, Stockpile
 from .surveys import Survey, SurveyFile, Upload, UploadChunk
 from .webhooks import Webhook, WebhookDelivery
 
-__all__ = ["ApiToken", "Base", "Organisation", "ROLES", "Run", "RunLog", "RunOutput", "RunStep", "Schedule", "Site",
+__all__ = ["ApiToken", "Base", "LoginThrottle", "Organisation", "ROLES", "Run", "RunLog", "RunOutput", "RunStep", "Schedule", "Site",
            "SiteRole", "Stockpile", "Survey", "SurveyFile", "Upload", "UploadChunk", "User", "UserSession", "VolumeMeasurement", "Webhook",
            "WebhookDelivery"]

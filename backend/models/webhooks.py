@@ -27,7 +27,13 @@ class WebhookDelivery(IdMixin, Base):
     payload: Mapped[dict] = mapped_column(JSON)
     state: Mapped[str] = mapped_column(String(16), default="pending")   # pending | delivered | failed
     attempts: Mapped[int] = mapped_column(Integer, default=0)
-    last_status: Mapped[int | None] = mapped_column(Integer, default=None)
-    last_error: Mapped[str | None] = mapped_column(Text, default=None)
+    last_status: Mapped[int | None] = mapped_column(Integer, default=None)   # internal: the API shows the class
+    last_error: Mapped[str | None] = mapped_column(Text, default=None)       # a generic reason, never the answer
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     delivered_at: Mapped[datetime | None] = mapped_column(default=None)
+
+    @property
+    def status_class(self) -> str | None:
+        """'2xx', '4xx', ... of the last answer (None without one)."""
+        s = self.last_status
+        return f"{s // 100}xx" if s is not None and 100 <= s <= 599 else None

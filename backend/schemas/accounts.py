@@ -21,6 +21,7 @@ class UserOut(ORM):
     name: str
     organisation_id: str
     is_org_admin: bool
+    is_active: bool = True
 
 
 class OrganisationOut(ORM):
@@ -80,3 +81,9 @@ class UserIn(BaseModel):
     name: str = Field(default="", max_length=200)
     password: str = Field(max_length=1024)
     is_org_admin: bool = False
+
+
+class UserPatch(BaseModel):
+    is_active: bool | None = Field(default=None, description="false: the user can no longer log in; their "
+                                                               "sessions end and their API tokens are refused")
+    name: str | None = Field(default=None, max_length=200)

@@ -183,7 +183,8 @@ class DeliveryOut(ORM):
     event: str
     state: str
     attempts: int
-    last_status: int | None
-    last_error: str | None
+    status_class: str | None = Field(description="class of the receiver's last answer: 2xx, 3xx, 4xx or 5xx")
+    last_error: str | None = Field(description="a generic reason (connection failed, no answer in time, ...); "
+                                               "never the receiver's answer")
     created_at: datetime
     delivered_at: datetime | None

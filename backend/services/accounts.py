@@ -6,10 +6,11 @@ from datetime import timedelta
 
 from sqlalchemy import select, update
 
-from ..core import security
+from ..core import passwords, security
 from ..core.problems import BadRequest, Conflict, Forbidden, NotFound, Unauthorized, Unprocessable
 from ..models import ApiToken, Organisation, Site, SiteRole, User, UserSession
 from ..models.base import utcnow
+from . import login_throttle
 from .context import SCOPES, Ctx, Principal, expand_scopes
 
 
@@ -17,9 +18,12 @@ def normalise_email(email: str) -> str:
     return email.strip().lower()
 
 
-def check_password_strength(password: str) -> None:
-    if len(password) < security.MIN_PASSWORD_LENGTH:
-        raise Unprocessable(f"password must have at least {security.MIN_PASSWORD_LENGTH} characters")
+def check_password_strength(password: str, email: str | None = None) -> None:
+    """The password policy (core/passwords.py): 422 naming the rule that failed."""
+    try:
+        passwords.check(password, email)
+    except passwords.WeakPassword as exc:
+        raise Unprocessable(str(exc), slug="weak-password", rule=exc.rule) from None
 
 
 # ----------------------------------------------------------------------------------------- bootstrap
@@ -36,7 +40,7 @@ def create_user(db, organisation_id: str, email: str, password: str, name: str =
     email = normalise_email(email)
     if "@" not in email or len(email) > 320:
         raise Unprocessable("email: not an e-mail address")
-    check_password_strength(password)
+    check_password_strength(password, email)
     if db.scalar(select(User.id).where(User.email == email)):
         raise Conflict(f"a user with e-mail {email} already exists")
     user = User(organisation_id=organisation_id, email=email, name=name, password_hash=security.hash_password(password),
@@ -49,12 +53,21 @@ def create_user(db, organisation_id: str, email: str, password: str, name: str =
 # ----------------------------------------------------------------------------------------- sessions
 
 
-def login(ctx: Ctx, email: str, password: str) -> tuple[str, UserSession, User]:
-    """(cookie value, session row, user); Unauthorized with one message whatever was wrong."""
+def login(ctx: Ctx, email: str, password: str, client_address: str | None = None) -> tuple[str, UserSession, User]:
+    """(cookie value, session row, user); Unauthorized with one message whatever was wrong (unknown
+    e-mail, wrong password, deactivated account); TooManyRequests (429, Retry-After) while the account or
+    the client address is throttled, decided before the password is looked at (services/login_throttle.py)."""
+    now = utcnow()
+    keys = login_throttle.keys_for(normalise_email(email), client_address, ctx.settings)
+    login_throttle.reserve(ctx.db, keys, ctx.settings, now)
+    ctx.db.commit()   # the attempt is counted, for every API process, before the slow check
     user = ctx.db.scalar(select(User).where(User.email == normalise_email(email)))
+    ctx.db.commit()   # no transaction (no SQLite write lock) held through the Argon2 verification
     ok = security.verify_password(user.password_hash if user else None, password)
     if not ok or user is None or not user.is_active:
         raise Unauthorized("e-mail or password is wrong")
+    login_throttle.release(ctx.db, keys, now)
+    login_throttle.prune(ctx.db, ctx.settings, now)
     if security.needs_rehash(user.password_hash):
         user.password_hash = security.hash_password(password)
     cookie = security.random_secret(32)
@@ -133,11 +146,17 @@ def _load_token_principal(db, token_hash: str) -> Principal | None:
 
 
 def change_password(ctx: Ctx, current: str, new: str) -> None:
+    """Throttled like a login (per account): a stolen session cannot try passwords at full speed."""
     _require_session(ctx)
     user = ctx.user
+    check_password_strength(new, user.email)
+    now = utcnow()
+    keys = [login_throttle.account_key(user.email, ctx.settings)]
+    login_throttle.reserve(ctx.db, keys, ctx.settings, now)
+    ctx.db.commit()
     if not security.verify_password(user.password_hash, current):
         raise Forbidden("current password is wrong")
-    check_password_strength(new)
+    login_throttle.release(ctx.db, keys, now)
     user.password_hash = security.hash_password(new)
     # every other session of the user ends
     ctx.db.execute(UserSession.__table__.delete().where(UserSession.user_id == user.id,
@@ -215,3 +234,36 @@ def add_user(ctx: Ctx, email: str, password: str, name: str, is_org_admin: bool)
     if not email:
         raise BadRequest("email is required")
     return create_user(ctx.db, ctx.user.organisation_id, email, password, name, is_org_admin)
+
+
+def _forget_user_tokens(user_id: str) -> None:
+    for k, (p, _) in list(_token_cache.items()):
+        if p.user.id == user_id:
+            _token_cache.pop(k, None)
+
+
+def update_user(ctx: Ctx, user_id: str, changes: dict) -> User:
+    """An organisation admin (de)activates a user of the organisation. A deactivated user cannot log in;
+    their sessions end at once and their API tokens are refused (within TOKEN_CACHE_S in the other API
+    processes); reactivation restores the tokens, not the sessions."""
+    if ctx.principal is None:
+        raise Unauthorized("authentication required")
+    if not ctx.user.is_org_admin:
+        raise Forbidden("only an organisation admin changes users")
+    if not ctx.principal.has_scope("admin"):
+        raise Forbidden("this API token lacks the 'admin' scope")
+    user = ctx.db.get(User, user_id) if user_id else None
+    if user is None or user.organisation_id != ctx.user.organisation_id:
+        raise NotFound("user not found")
+    active = changes.get("is_active")
+    if active is not None:
+        if not active and user.id == ctx.user.id:
+            raise Conflict("you cannot deactivate your own account (ask another organisation admin)")
+        user.is_active = bool(active)
+        if not active:
+            ctx.db.execute(UserSession.__table__.delete().where(UserSession.user_id == user.id))
+            _forget_user_tokens(user.id)
+    if changes.get("name") is not None:
+        user.name = changes["name"]
+    ctx.db.flush()
+    return user

@@ -1,15 +1,44 @@
 """The per-survey PDF accuracy report (reportlab), drawn from a run folder: PPK quality, antenna
 precision at the camera triggers, lever arm and delay, check-point residual table with statistics,
-stockpile volumes and their change against the previous run, and the state of every step."""
+stockpile volumes and their change against the previous run, and the state of every step.
+
+Everything shown comes from users (site, survey, stockpile and point names) or from the processing
+(warnings, step errors): ReportLab's Paragraph reads its text as markup (<img src="..."/> embeds a file
+of the server, a stray "<" fails the build), so every piece of text is escaped before it enters one
+(`_esc`), and file paths are reduced to file names (`_scrub`): the report never shows the worker's folders."""
 
 from __future__ import annotations
 
 import json
 import math
+import re
 from datetime import datetime, timezone
 from pathlib import Path
+from xml.sax.saxutils import escape
 
 from . import result_files
+
+# characters XML 1.0 does not allow (the Paragraph parser is XML-like): replaced, not passed through
+_BAD_CHARS = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffe\uffff]")
+# an absolute POSIX path (two components at least) or a Windows drive path, not part of a URL or a ratio
+_ABS_PATH = re.compile(r"(?<![\w.:/~-])(?:/|[A-Za-z]:\\)(?:[^\s/\\'\"<>|:;,()]+[/\\])+([^\s/\\'\"<>|:;,()]*)")
+
+
+def _esc(value) -> str:
+    """Plain text -> Paragraph markup that shows exactly that text."""
+    return escape(_BAD_CHARS.sub("?", "" if value is None else str(value)))
+
+
+def _scrub(value, run_dir: Path | None = None) -> str:
+    """Text from the processing with file paths reduced to file names (relative to the run folder where
+    they are inside it)."""
+    text = "" if value is None else str(value)
+    if run_dir is not None:
+        run_dir = Path(run_dir)
+        # the worker passes its run folder's out/ (beside survey/): both, then the folder itself
+        for base in (run_dir.parent / "survey", run_dir.parent / "out", run_dir / "survey", run_dir / "out", run_dir):
+            text = text.replace(str(base) + "/", "")
+    return _ABS_PATH.sub(lambda m: m.group(1) or "", text)
 
 
 def _read_json(path: Path):
@@ -42,12 +71,18 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
 
     def h(text):
         story.append(Spacer(1, 4 * mm))
-        story.append(Paragraph(text, styles["Heading2"]))
+        story.append(Paragraph(_esc(text), styles["Heading2"]))
 
     def p(text):
-        story.append(Paragraph(text, styles["BodyText"]))
+        """A paragraph of plain text (escaped here: never markup)."""
+        story.append(Paragraph(_esc(text), styles["BodyText"]))
+
+    def cell(value):
+        """A table cell: plain strings are drawn as they are (never parsed as markup)."""
+        return _BAD_CHARS.sub("?", value) if isinstance(value, str) else value
 
     def table(rows, widths=None):
+        rows = [[cell(v) for v in r] for r in rows]
         t = Table(rows, colWidths=widths, repeatRows=1)
         t.setStyle(TableStyle([("FONT", (0, 0), (-1, 0), "Helvetica-Bold", 8), ("FONT", (0, 1), (-1, -1), "Helvetica", 8),
                                ("GRID", (0, 0), (-1, -1), 0.25, colors.grey),
@@ -55,11 +90,13 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
                                ("ALIGN", (1, 1), (-1, -1), "RIGHT")]))
         story.append(t)
 
-    story.append(Paragraph(f"Accuracy report: {meta.get('survey', 'survey')}", styles["Title"]))
-    p(f"Site <b>{meta.get('site', '')}</b>, project CRS {meta.get('crs', '')}"
-      + (f", vertical datum {meta['vertical_datum']}" if meta.get("vertical_datum") else ", ellipsoidal heights")
-      + f". Flight: {meta.get('flown_at') or 'date not given'}. Processing run {meta.get('run_number', '?')}, "
-      f"report made {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC.")
+    story.append(Paragraph("Accuracy report: " + _esc(meta.get("survey", "survey")), styles["Title"]))
+    story.append(Paragraph(
+        f"Site <b>{_esc(meta.get('site', ''))}</b>, project CRS {_esc(meta.get('crs', ''))}"
+        + (f", vertical datum {_esc(meta['vertical_datum'])}" if meta.get("vertical_datum") else ", ellipsoidal heights")
+        + f". Flight: {_esc(meta.get('flown_at') or 'date not given')}. Processing run "
+        f"{_esc(meta.get('run_number', '?'))}, report made {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC.",
+        styles["BodyText"]))
 
     # --- GNSS
     gs = _read_json(run_dir / "ppk" / "summary.json") or _read_json(run_dir / "ppk" / "trajectory_summary.json")
@@ -75,7 +112,7 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
             p(f"Camera triggers: {ev.get('count', '-')} events, {ev.get('fixed', '-')} on fixed epochs, "
               f"{ev.get('without_solution', 0)} without solution.")
         for w in (gs.get("warnings") or [])[:10]:
-            p(f"Note: {w}")
+            p(f"Note: {_scrub(w, run_dir)}")
     else:
         p("No GNSS solution in this run.")
     ev_csv = run_dir / "ppk" / "events.csv"
@@ -152,12 +189,14 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
     h("5. Processing steps")
     rows = [["step", "state", "note"]]
     for s in meta.get("steps", []):
-        rows.append([s["name"], s["state"], Paragraph((s.get("error") or "")[:300], styles["BodyText"])])
+        rows.append([s["name"], s["state"],
+                     Paragraph(_esc(_scrub(s.get("error") or "", run_dir)[:300]), styles["BodyText"])])
     table(rows, widths=[25 * mm, 25 * mm, 120 * mm])
 
     out_pdf = Path(out_pdf)
     out_pdf.parent.mkdir(parents=True, exist_ok=True)
-    doc = SimpleDocTemplate(str(out_pdf), pagesize=A4, title=f"Accuracy report {meta.get('survey', '')}",
-                            author="Georef", leftMargin=18 * mm, rightMargin=18 * mm)
+    doc = SimpleDocTemplate(str(out_pdf), pagesize=A4,
+                            title=_BAD_CHARS.sub("?", f"Accuracy report {meta.get('survey', '')}"),
+                            author="Georef", subject="", creator="Georef", leftMargin=18 * mm, rightMargin=18 * mm)
     doc.build(story)
-    return {"pdf": str(out_pdf), "sections": sections}
+    return {"pdf": out_pdf.name, "sections": sections}

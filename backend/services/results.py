@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -141,14 +142,51 @@ def _to_wgs84(crs: str):
     return Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
 
 
-def _csv_bytes(rows: list[dict], columns: list[str] | None = None) -> bytes:
-    buf = io.StringIO()
-    cols = columns or (list(rows[0].keys()) if rows else [])
-    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
+# CSV cells a spreadsheet would run as a formula (=HYPERLINK(...), +cmd|..., -2+3, @SUM(...)), OWASP's list;
+# numbers keep their sign (a negative residual is data, not a formula)
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "\n")
+_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf|infinity)$", re.I)
+
+
+def csv_safe_cell(value):
+    """A cell value that a spreadsheet shows as text: a leading ' before a formula-like string."""
+    if isinstance(value, str) and value.startswith(_FORMULA_START) and not _NUMBER.match(value):
+        return "'" + value
+    return value
+
+
+def _csv_field(value) -> str:
+    text = "" if value is None else str(value)
+    if any(c in text for c in ',"\r\n'):
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def _csv_lines(rows) -> bytes:
+    """RFC 4180 fields (quoted when they hold a comma, a quote, CR or LF: the csv module leaves a bare CR
+    unquoted with a LF line terminator), LF-terminated rows, formula-like cells neutralised."""
+    out = []
     for r in rows:
-        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols})
-    return buf.getvalue().encode()
+        cells = [_csv_field(csv_safe_cell(c)) for c in r]
+        out.append(",".join(cells) if cells != [""] else '""')
+    return ("\n".join(out) + "\n").encode() if out else b""
+
+
+def csv_safe_bytes(data: bytes) -> bytes:
+    """A CSV file as stored, with formula-like cells neutralised (the file unchanged when it has none)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        text = data.decode("utf-8", errors="replace")
+    rows = list(csv.reader(io.StringIO(text, newline="")))
+    if not any(csv_safe_cell(c) is not c for r in rows for c in r):
+        return data
+    return _csv_lines(rows)
+
+
+def _csv_bytes(rows: list[dict], columns: list[str] | None = None) -> bytes:
+    cols = columns or (list(rows[0].keys()) if rows else [])
+    return _csv_lines([cols] + [[r.get(k) for k in cols] for r in rows])
 
 
 def _geojson_bytes(features: list[dict], extra: dict | None = None) -> bytes:
@@ -176,9 +214,19 @@ def _cached(key: tuple, build) -> Rendered:
 
 
 def _raw(ctx: Ctx, o: RunOutput, media: str, filename: str) -> Rendered:
-    """An output file as stored, kept in the rendered cache (no file read per poll)."""
-    return _cached(("raw", o.sha256, media, filename),
-                   lambda: Rendered(ctx.storage.read_bytes(blob_key(o.sha256)), media, f'"{o.sha256[:32]}"', filename))
+    """An output file as stored, kept in the rendered cache (no file read per poll); CSV files with their
+    formula-like cells neutralised (point and image names come from users)."""
+    def build():
+        data = ctx.storage.read_bytes(blob_key(o.sha256))
+        if media.startswith("text/csv"):
+            safe = csv_safe_bytes(data)
+            if safe is not data:
+                return Rendered(safe, media, f'"{o.sha256[:32]}-safe"', filename)
+        return Rendered(data, media, f'"{o.sha256[:32]}"', filename)
+    return _cached(("raw", o.sha256, media, filename), build)
+
+
+raw_output = _raw
 
 
 def trajectory(ctx: Ctx, run_id: str, fmt: str, every: int) -> Rendered:

@@ -34,7 +34,8 @@ def write_pos(path, sol, program: str = "georef") -> None:
     lines = [f"% program   : {program}"]
     for role in ("rover", "base", "nav"):
         for p in sol.input_paths.get(role, []):
-            lines.append(f"% inp file  : {p}")
+            # the file's name only: the folder it was read from is the processing machine's business
+            lines.append(f"% inp file  : {str(p).replace(chr(92), '/').rsplit('/', 1)[-1]}")
     valid = np.nonzero(sol.status > 0)[0]
     if len(valid):
         t0, t1 = gps_time_s_to_datetime(sol.time_s[valid[0]]), gps_time_s_to_datetime(sol.time_s[valid[-1]])

@@ -192,6 +192,44 @@ def stop_worker(w: WorkerProc, sig=signal.SIGTERM) -> None:
             w.proc.wait(timeout=10)
 
 
+# ----------------------------------------------------------------------------------------------- network
+
+# public addresses that the tests' fake resolver hands out for names: never connected to (a webhook
+# delivery to them is refused or not attempted in the tests), documentation-free and globally routable
+PUBLIC_TEST_IP = "93.184.215.14"
+
+
+class FakeDNS:
+    """socket.getaddrinfo for the tests: names in `names` resolve to the given addresses, numeric hosts
+    go to the real function (no lookup), anything else fails as an unknown name. No DNS query leaves the
+    machine. `asked` records the names looked up, in order."""
+
+    def __init__(self, names: dict[str, list[str]]):
+        self.names = {k.lower(): list(v) for k, v in names.items()}
+        self.asked: list[str] = []
+        self._real = socket.getaddrinfo
+
+    def __call__(self, host, port, family=0, type=0, proto=0, flags=0):
+        h = host.decode() if isinstance(host, bytes) else str(host)
+        try:
+            import ipaddress
+
+            ipaddress.ip_address(h.split("%", 1)[0])
+            return self._real(host, port, family, type, proto, flags)
+        except ValueError:
+            pass
+        self.asked.append(h.lower())
+        addrs = self.names.get(h.lower().rstrip("."))
+        if addrs is None:
+            raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+        out = []
+        for a in addrs:
+            fam = socket.AF_INET6 if ":" in a else socket.AF_INET
+            sockaddr = (a, int(port or 0), 0, 0) if fam == socket.AF_INET6 else (a, int(port or 0))
+            out.append((fam, socket.SOCK_STREAM, 6, "", sockaddr))
+        return out
+
+
 # ----------------------------------------------------------------------------------------------- accounts
 
 

@@ -14,7 +14,7 @@ import hashlib
 import pytest
 from fastapi.routing import iter_route_contexts
 
-from .platform_helpers import Api, add_user, upload_bytes
+from .platform_helpers import PUBLIC_TEST_IP, Api, FakeDNS, add_user, upload_bytes
 
 POINTS = b"name,easting_m,northing_m,ellipsoidal_height_m,role\nT1,679508.0,3889231.0,80.0,control\n" \
          b"T2,679478.0,3889241.0,79.9,check\n"
@@ -89,6 +89,7 @@ UNSCOPED = {
     ("POST", "/api/v1/auth/login"), ("POST", "/api/v1/auth/logout"), ("GET", "/api/v1/auth/me"),
     ("POST", "/api/v1/auth/password"), ("GET", "/api/v1/tokens"), ("POST", "/api/v1/tokens"),
     ("DELETE", "/api/v1/tokens/{token_id}"), ("GET", "/api/v1/users"), ("POST", "/api/v1/users"),
+    ("PATCH", "/api/v1/users/{user_id}"),
     ("GET", "/api/v1/sites"), ("POST", "/api/v1/sites"), ("GET", "/api/v1/webhooks"), ("POST", "/api/v1/webhooks"),
     ("GET", "/api/v1/health"),
 }
@@ -127,7 +128,9 @@ def world(platform):
     run = a.post(f"/api/v1/surveys/{survey['id']}/runs", json={"steps": ["gnss"]}).json()
     pile = a.post(f"/api/v1/sites/{site['id']}/stockpiles", json={"name": "P1", "outline": OUTLINE}).json()
     sched = a.post(f"/api/v1/sites/{site['id']}/schedules", json={"name": "nightly"}).json()
-    hook = a.post("/api/v1/webhooks", json={"site_id": site["id"], "url": "http://127.0.0.1:9/hook"}).json()
+    with pytest.MonkeyPatch.context() as mp:   # the webhook's name resolves without a DNS query
+        mp.setattr("socket.getaddrinfo", FakeDNS({"gis.example.com": [PUBLIC_TEST_IP]}))
+        hook = a.post("/api/v1/webhooks", json={"site_id": site["id"], "url": "https://gis.example.com/hook"}).json()
     tok = a.post("/api/v1/tokens", json={"name": "gis", "scopes": ["read"]}).json()
     ids = {"site_id": site["id"], "survey_id": survey["id"], "file_id": files[0]["id"], "upload_id": upload["id"],
            "run_id": run["id"], "stockpile_id": pile["id"], "schedule_id": sched["id"], "webhook_id": hook["id"],
@@ -245,8 +248,12 @@ def test_unscoped_routes(world):
     assert ids["token_id"] not in [t["id"] for t in b.get("/api/v1/tokens").json()]
     me = b.get("/api/v1/auth/me").json()
     assert all(r["site_id"] != ids["site_id"] for r in me["site_roles"])
-    # only organisation admins add users
+    # only organisation admins add users, and (de)activate them; never in another organisation
     assert b.post("/api/v1/users", json={"email": "z@example.org", "password": "long-enough-1"}).status_code == 403
+    assert b.patch(f"/api/v1/users/{ids['user_id']}", json={"is_active": False}).status_code == 403
+    assert world["c"].get("/api/v1/auth/me").status_code == 200     # C untouched
+    outsider_id, _ = add_user(world["platform"], f"o-{world['platform'].shape}@example.org")
+    assert a.patch(f"/api/v1/users/{outsider_id}", json={"is_active": False}).status_code == 404
     assert a.get("/api/v1/health").status_code == 200
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 PY = sys.executable
 DEMO_EMAIL = "manager@demo.example"
-DEMO_PASSWORD = "site-manager-demo"
+DEMO_PASSWORD = "quarry-lead-2024"   # the password policy: not containing "manager" (the e-mail's name)
 DEMO_SITE = "Demo quarry"
 DEMO_CRS = "EPSG:32653"   # the simulator's default site CRS (UTM 53N)
 QUEUE = "georef-ui"

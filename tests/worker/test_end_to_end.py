@@ -60,8 +60,10 @@ def env(tmp_path_factory, small_survey):
     if not (have_postgres() and have_redis()):
         pytest.skip("PostgreSQL (127.0.0.1:5432) and Redis (127.0.0.1:6379) are needed")
     s3, s3_settings = start_s3_server()
+    # the webhook receiver below listens on the loopback: allowed as an on-premise network would be
+    # (webhook targets are public addresses only by default)
     p = make_platform(tmp_path_factory.mktemp("e2e"), "postgres", queue="e2e", new_data_debounce_s=0,
-                      schedule_tick_s=1, **s3_settings)
+                      schedule_tick_s=1, webhook_allowed_networks="127.0.0.0/8", **s3_settings)
     server = HTTPServer(("127.0.0.1", 0), Hook)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     # as in docker-compose.yml: a worker on the default queue (with beat) and one on the heavy queue, each

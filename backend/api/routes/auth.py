@@ -12,9 +12,14 @@ from ..responses import json_response
 router = APIRouter(prefix="/auth", tags=["auth"])
 
 
-@router.post("/login", response_model=LoginOut, summary="Log in with e-mail and password (sets the session cookie)")
+@router.post("/login", response_model=LoginOut, summary="Log in with e-mail and password (sets the session cookie)",
+             responses={429: {"description": "too many failed logins for the account or the client address: "
+                                             "wait Retry-After seconds"}})
 def login(body: LoginIn, ctx: PublicCtxDep, request: Request):
-    cookie, sess, user = accounts.login(ctx, body.email, body.password)
+    # the client's address as uvicorn sees it (behind a proxy: --proxy-headers with the proxy's address in
+    # --forwarded-allow-ips, and a proxy that overwrites X-Forwarded-For; docs/security.md)
+    cookie, sess, user = accounts.login(ctx, body.email, body.password,
+                                        request.client.host if request.client else None)
     resp = json_response(request, LoginOut(user=UserOut.model_validate(user), csrf_token=sess.csrf_token,
                                            expires_at=sess.expires_at))
     max_age = int(ctx.settings.session_hours * 3600)

@@ -125,5 +125,7 @@ def report(run_id: str, ctx: CtxDep, request: Request):
 @router.get("/files/{path:path}", summary="Any output file of the run")
 def output_file(run_id: str, path: str, ctx: CtxDep, request: Request):
     o = results.output_by_path(ctx, run_id, path)
-    return blob_response(request, ctx.storage, o.sha256, o.size, results.media_type(o.path),
-                         o.path.rsplit("/", 1)[-1])
+    media = results.media_type(o.path)
+    if media.startswith("text/csv"):   # spreadsheet formulas in user-named cells neutralised (no ranges)
+        return _send(request, results.raw_output(ctx, o, media, o.path.rsplit("/", 1)[-1]))
+    return blob_response(request, ctx.storage, o.sha256, o.size, media, o.path.rsplit("/", 1)[-1])
