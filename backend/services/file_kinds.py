@@ -184,7 +184,7 @@ def _rinex_obs_meta(path: Path, packing: str | None, hatanaka: bool, head_text: 
     in_header = True
     v3 = meta.get("rinex_version", 3.0) >= 3
     rx = _R3_EPOCH if v3 else _R2_EPOCH
-    for line in _iter_text_lines(path, packing):
+    for n_line, line in enumerate(_iter_text_lines(path, packing), 1):
         if in_header:
             if "END OF HEADER" in line[60:]:
                 in_header = False
@@ -195,7 +195,11 @@ def _rinex_obs_meta(path: Path, packing: str | None, hatanaka: bool, head_text: 
         if not m:
             continue
         flag = int(m.group(7))
-        t = _gps_seconds(*(int(m.group(i)) for i in range(1, 6)), float(m.group(6)))
+        try:
+            t = _gps_seconds(*(int(m.group(i)) for i in range(1, 6)), float(m.group(6)))
+        except ValueError:   # month 13, day 32, hour 25 ...: a damaged epoch line, named
+            raise UnrecognisedFile(f"RINEX observation file, line {n_line}: impossible epoch date/time "
+                                   f"{line[:30].strip()!r}") from None
         if flag == 5:
             events += 1
         elif flag in (0, 1):
@@ -677,6 +681,8 @@ def recognise(path, name: str = "") -> Recognised:
             obj = json.loads(_read_table_text(path))
         except ValueError as exc:
             raise UnrecognisedFile(f"JSON that cannot be parsed ({exc})") from None
+        except RecursionError:
+            raise UnrecognisedFile("JSON nested too deeply to be a survey.json") from None
         if not isinstance(obj, dict):
             raise UnrecognisedFile("JSON that is not an object")
         return Recognised("survey-metadata", {"keys": sorted(obj)[:50]})

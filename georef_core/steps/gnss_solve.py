@@ -96,9 +96,16 @@ def read_survey_json(survey_dir) -> dict:
     if not p.is_file():
         return {}
     try:
-        return json.loads(p.read_text())
+        doc = json.loads(p.read_text())
     except json.JSONDecodeError as exc:
         raise InputFileError(p, f"not valid JSON ({exc})") from None
+    except RecursionError:
+        raise InputFileError(p, "JSON nested too deeply (not a survey description)") from None
+    except UnicodeDecodeError as exc:
+        raise InputFileError(p, f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    if not isinstance(doc, dict):
+        raise InputFileError(p, f"expected a JSON object (names and values), found a JSON {type(doc).__name__}")
+    return doc
 
 
 _SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "ratio", "navsys", "tdcp_slips",

@@ -105,6 +105,14 @@ def test_bad_uploads_refused_and_survey_untouched(ctx):
     _refused(upload_bytes(api, sid, "points.csv", b"name,easting_m,northing_m,ellipsoidal_height_m,role\n"
                                                   b"T1,abc,1,2,control\n"), "easting_m", "line 2")
     _refused(upload_bytes(api, sid, "data.bin", POINTS_CSV, sha256="0" * 64), "SHA-256 mismatch")
+    # a RINEX epoch with month 13 / a survey.json nested 50,000 deep: named, not a server error
+    obs = (sim / "base" / "base.obs").read_text()
+    head, body = obs.split("END OF HEADER", 1)
+    line_no = head.count("\n") + 2
+    first = body.split("\n", 2)[1]
+    bad = head + "END OF HEADER" + body.replace(first, first[:7] + "13" + first[9:], 1)
+    _refused(upload_bytes(api, sid, "base13.obs", bad.encode()), "impossible epoch date/time", f"line {line_no}")
+    _refused(upload_bytes(api, sid, "survey.json", b'{"a":' + b"[" * 50000 + b"]" * 50000 + b"}"), "nested too deeply")
     # truncated transfer: completion refused until every byte arrived
     up = api.post(f"/api/v1/surveys/{sid}/uploads",
                   json={"filename": "x.csv", "size": len(POINTS_CSV) + 100,

@@ -172,3 +172,14 @@ def test_mrk_apart_from_its_photos_in_the_standard_folders(tmp_path):
     (tmp_path / "s" / "images" / "DJI_0001_Timestamp.MRK").rename(tmp_path / "s" / "rover" / "f_Timestamp.MRK")
     found = survey_inputs(tmp_path / "s", tmp_path / "out")
     assert found.layout == "dji" and found.image_names == ["DJI_0001.JPG", "DJI_0002.JPG", "DJI_0003.JPG"]
+
+
+@pytest.mark.parametrize("content, problem", [("[" * 50000 + "]" * 50000, "JSON nested too deeply"),
+                                              ("[1, 2]", "expected a JSON object"),
+                                              ("{'a': 1}", "not valid JSON")])
+def test_bad_survey_json_is_named(tmp_path, content, problem):
+    from georef_core.steps.gnss_solve import read_survey_json
+
+    (tmp_path / "survey.json").write_text(content)
+    with pytest.raises(InputFileError, match=f"survey.json: {problem}"):
+        read_survey_json(tmp_path)
