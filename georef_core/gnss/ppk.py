@@ -398,9 +398,19 @@ def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
     paths = _as_paths(paths)
     if not paths:
         raise ProcessingError(f"no {role} observation file")
-    loaded = [load_observations(p, approx_gps_time_s) for p in paths]
+    import warnings
+
+    # what the readers warn about (a file cut inside an epoch record, ...) reaches the solution's warnings,
+    # and through them the step summary and the UI, not only the console
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        loaded = [load_observations(p, approx_gps_time_s) for p in paths]
+    read_notes = list(dict.fromkeys(f"{role}: {w.message}" for w in caught if issubclass(w.category, UserWarning)))
+    for w in caught:
+        if not issubclass(w.category, UserWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if len(loaded) == 1:
-        return loaded[0], []
+        return loaded[0], read_notes
     raw, notes = join_observations([x.observations for x in loaded])
     if role == "base" and any("header positions differ" in n for n in notes):
         raise InputFileError(paths[0], f"the base files {', '.join(Path(p).name for p in paths)} are not from one "
@@ -409,7 +419,7 @@ def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
     for x in loaded:
         if x.navigation is not None:
             nav = x.navigation if nav is None else nav.merge(x.navigation)
-    notes = [f"{role}: {len(paths)} files joined" + (f" ({'; '.join(notes)})" if notes else "")]
+    notes = read_notes + [f"{role}: {len(paths)} files joined" + (f" ({'; '.join(notes)})" if notes else "")]
     return LoadedObservations(raw, nav, "joined"), notes
 
 

@@ -183,3 +183,20 @@ def test_bad_survey_json_is_named(tmp_path, content, problem):
     (tmp_path / "survey.json").write_text(content)
     with pytest.raises(InputFileError, match=f"survey.json: {problem}"):
         read_survey_json(tmp_path)
+
+
+def test_a_rover_cut_mid_record_is_named_in_the_solution(tmp_path):
+    """A rover file cut inside an epoch record: the solve keeps the complete epochs and its warnings (the
+    step summary, the UI) say the file is truncated."""
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    for sub in ("rover", "base", "nav"):
+        (tmp_path / sub).mkdir()
+    data = (GSI / "07590920.05o").read_bytes()
+    (tmp_path / "rover" / "rover.obs").write_bytes(data[: len(data) // 2])
+    shutil.copy(GSI / "30400920.05o", tmp_path / "base")
+    shutil.copy(GSI / "07590920.05n", tmp_path / "nav")
+    s = run_survey_gnss(tmp_path, tmp_path / "out")
+    assert s["epochs"] < 120
+    assert any("rover:" in w and "ends inside this epoch record (truncated file?)" in w for w in s["warnings"]), \
+        s["warnings"]
