@@ -495,7 +495,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     # ---- GNSS
     t0 = time.perf_counter()
     gnss = None
-    if found.rover_files:
+    if found.rover_files or (survey_dir / "rover").is_dir():   # a rover/ without a log: the GNSS step says so
         report("gnss", 0, 1)
         ev_csv = out / "ppk" / "events.csv"
         times, times_source = None, ""
