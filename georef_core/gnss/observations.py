@@ -206,3 +206,21 @@ def join_observations(parts: list[RawObservations], gap_factor: float = 5.0) -> 
     joined = RawObservations(" + ".join(p.source_path for p in parts), times[keep], sat_ids, codes, values[keep],
                              lli[keep], ssi[keep], header, events, flags[keep])
     return joined, notes
+
+
+def carry_slips_to_valid_phase(slip: np.ndarray, valid: np.ndarray, same_signal: np.ndarray) -> np.ndarray:
+    """Measurements sorted by signal then epoch: True where the phase is valid and a slip happened since
+    the signal's previous valid phase (a slip while the phase was missing is carried to the next one).
+    ``same_signal[i]``: measurement i has the same signal as i - 1. Used by the UBX and RTCM 3 readers."""
+    n = len(slip)
+    idx = np.arange(n)
+    group_start = np.maximum.accumulate(np.where(same_signal, 0, idx))
+    cs = np.cumsum(slip)
+    last_valid = np.maximum.accumulate(np.where(valid, idx, -1))
+    prev_valid = np.empty(n, dtype=np.int64)
+    if n:
+        prev_valid[0] = -1
+        prev_valid[1:] = last_valid[:-1]
+    prev_valid = np.maximum(prev_valid, group_start - 1)
+    cs_before = np.where(prev_valid >= 0, cs[np.maximum(prev_valid, 0)], 0)
+    return valid & ((cs - cs_before) > 0)

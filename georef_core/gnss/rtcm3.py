@@ -51,7 +51,7 @@ from .constants import CLIGHT_M_S, SYSTEMS
 from .gnss_time import SECONDS_PER_WEEK, datetime_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .navigation import NavigationData
 from .frame_selection import take_frames_in_order
-from .observations import RawObservations, ReceiverHeader
+from .observations import RawObservations, ReceiverHeader, carry_slips_to_valid_phase
 from .ubx_nav_decode import _CRC24Q_TABLE
 
 __all__ = ["Rtcm3Log", "Rtcm3Frames", "StationInfo", "find_rtcm3_frames", "read_rtcm3", "decode_rtcm3_bytes",
@@ -664,15 +664,6 @@ def _loss_of_lock(epoch: np.ndarray, epoch_time: np.ndarray, signal_key: np.ndar
         gap_ms = np.where(same, (t - t[prev]) * 1000.0, 0.0)
         # the indicator is a minimum: at most twice it (plus one 32 ms step) can have passed
         slip |= same & (2 * lock + 32 < gap_ms)
-    group_start = np.maximum.accumulate(np.where(same, 0, idx))
-    cs = np.cumsum(slip)
-    last_valid = np.maximum.accumulate(np.where(valid, idx, -1))
-    prev_valid = np.empty(n, dtype=np.int64)
-    prev_valid[0] = -1
-    prev_valid[1:] = last_valid[:-1]
-    prev_valid = np.maximum(prev_valid, group_start - 1)
-    cs_before = np.where(prev_valid >= 0, cs[np.maximum(prev_valid, 0)], 0)
-    carried = (cs - cs_before) > 0
     out = np.zeros(n, dtype=np.uint8)
-    out[order] = np.where(valid & carried, 1, 0).astype(np.uint8)
+    out[order] = carry_slips_to_valid_phase(slip, valid, same).astype(np.uint8)
     return out

@@ -44,7 +44,7 @@ from .frames import geodetic_to_ecef_m
 from .gnss_time import SECONDS_PER_WEEK, datetime_to_gps_time_s, gps_time_s_to_datetime, leap_seconds_at
 from .navigation import NavigationData
 from .frame_selection import take_frames_in_order
-from .observations import RawObservations, ReceiverHeader
+from .observations import RawObservations, ReceiverHeader, carry_slips_to_valid_phase
 from .ubx_nav_decode import SfrbxNavDecoder
 
 __all__ = ["UbxLog", "UbxFrames", "read_ubx", "decode_ubx_bytes", "find_ubx_frames", "ubx_signal_code"]
@@ -488,7 +488,6 @@ def _loss_of_lock(m: _Measurements, slip_on_lock_gap: bool) -> np.ndarray:
     idx = np.arange(n)
     same = np.zeros(n, dtype=bool)
     same[1:] = k_s[1:] == k_s[:-1]
-    group_start = np.maximum.accumulate(np.where(same, 0, idx))
     prev = np.maximum(idx - 1, 0)
     if m.kind == "rawx":
         prev_half = np.where(same, half_sub[prev], False)
@@ -499,15 +498,8 @@ def _loss_of_lock(m: _Measurements, slip_on_lock_gap: bool) -> np.ndarray:
     else:
         slip = m.slip_flag[order].copy()
     # carry a slip to the next valid phase: any slip since the previous valid phase of the signal
-    cs = np.cumsum(slip)
-    last_valid = np.maximum.accumulate(np.where(valid, idx, -1))
-    prev_valid = np.empty(n, dtype=np.int64)
-    prev_valid[0] = -1
-    prev_valid[1:] = last_valid[:-1]
-    prev_valid = np.maximum(prev_valid, group_start - 1)
-    cs_before = np.where(prev_valid >= 0, cs[np.maximum(prev_valid, 0)], 0)
-    carried = (cs - cs_before) > 0
-    out = np.where(valid & carried, LLI_SLIP, 0) | np.where(valid & ~m.half_valid[order], LLI_HALF_CYCLE, 0)
+    carried = carry_slips_to_valid_phase(slip, valid, same)
+    out = np.where(carried, LLI_SLIP, 0) | np.where(valid & ~m.half_valid[order], LLI_HALF_CYCLE, 0)
     lli[order] = out.astype(np.uint8)
     return lli
 

@@ -513,7 +513,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         same_triggers = (made_from_exif and previous_triggers == trig.read_text()) if times is not None \
             else not made_from_exif
         if not (opts.reuse and ev_csv.is_file() and same_triggers):
-            run_survey_gnss(survey_dir, out, gnss_options)
+            run_survey_gnss(survey_dir, out, gnss_options, found=found)
         if ev_csv.is_file():
             gnss = match_images_to_events(image_dir, image_names, ev_csv, times, times_source, found.events_csv)
             warnings += gnss.warnings

@@ -112,10 +112,11 @@ _SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "
                         "hold_variance", "base_position_ecef_m", "known_start_ecef_m", "epsg", "events_csv"}
 
 
-def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None) -> dict:
+def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None, found=None) -> dict:
     """PPK for a survey folder (rover/, base/, nav/, optional events.csv and survey.json, or DJI flight
-    folders beside base/: survey_inputs.py) into ``out_dir/ppk/``. A survey of photos alone (no raw log,
-    no base) has nothing to solve: the summary says ``skipped`` and why. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
+    folders beside base/: survey_inputs.py; ``found``: its result when the caller already has it) into
+    ``out_dir/ppk/``. A survey of photos alone (no raw log, no base) has nothing to solve: the summary
+    says ``skipped`` and why. Options: ``freq`` ('auto', 'l1', 'l1+l2'), ``mode`` ('auto', 'kinematic',
     'known-start'), ``direction`` ('combined', 'forward', 'backward'), ``base_position_ecef_m``,
     ``known_start_ecef_m``, ``epsg``, ``events_csv`` (trigger times that override the survey's), and the CLI's ``elmask`` (deg), ``ar`` (ambiguity mode), ``ratio``
     (ratio-test threshold), ``navsys`` ('G,E,...'), ``tdcp_slips`` (m), ``hold_variance`` (cycles²); the summary
@@ -130,7 +131,7 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     meta = read_survey_json(survey_dir)
     from .survey_inputs import survey_inputs
 
-    found = survey_inputs(survey_dir, out_dir)
+    found = found if found is not None else survey_inputs(survey_dir, out_dir)   # georef passes its own
     rovers, bases, navs = found.rover_files, found.base_files, found.nav_files
     if not rovers and not bases and not (survey_dir / "rover").is_dir() and found.image_names:
         # photos alone (RTK-tagged or EXIF GPS): nothing to solve; the georef step uses their positions

@@ -152,7 +152,21 @@ def _photo_numbers(photos: list[Path]) -> list[int] | None:
     return nums if len(set(nums)) == len(nums) else None
 
 
-def match_photos_to_exposures(flight: DjiFlight, mrk) -> tuple[list[int], list[str]]:
+def read_photo_infos(photos: list[Path]) -> dict[Path, object]:
+    """EXIF of each photo (photo.images.ImageInfo), read once for every check; unreadable photos are left
+    out (the SfM step names them)."""
+    from ..photo.images import read_image_info
+
+    infos = {}
+    for p in photos:
+        try:
+            infos[p] = read_image_info(p, warn=False)
+        except InputFileError:
+            continue
+    return infos
+
+
+def match_photos_to_exposures(flight: DjiFlight, mrk, infos: dict | None = None) -> tuple[list[int], list[str]]:
     """Row of the MRK of each photo of a flight, and warnings. Raises InputFileError naming the MRK and
     the photo folder when they cannot belong together."""
     warnings: list[str] = []
@@ -176,7 +190,8 @@ def match_photos_to_exposures(flight: DjiFlight, mrk) -> tuple[list[int], list[s
     if n_exp > n_photo:
         warnings.append(f"{flight.mrk_path.name}: {n_exp - n_photo} exposure(s) without a photo in {flight.folder.name} "
                         "(deleted photos?)")
-    spread = _exif_time_spread_s(flight.photos, mrk.gps_time_s[np.asarray(rows)])
+    infos = infos if infos is not None else read_photo_infos(flight.photos)
+    spread = _exif_time_spread_s(flight.photos, mrk.gps_time_s[np.asarray(rows)], infos)
     if spread is not None and spread > MAX_EXIF_MRK_SPREAD_S:
         raise InputFileError(flight.mrk_path, f"the photos' EXIF times do not follow the MRK times (matched by {how}): "
                                               f"their difference varies by {spread:.1f} s over {flight.folder} (more "
@@ -185,19 +200,15 @@ def match_photos_to_exposures(flight: DjiFlight, mrk) -> tuple[list[int], list[s
     return rows, warnings
 
 
-def _exif_time_spread_s(photos: list[Path], mrk_gps_s: np.ndarray) -> float | None:
+def _exif_time_spread_s(photos: list[Path], mrk_gps_s: np.ndarray, infos: dict) -> float | None:
     """Spread (max - min) of EXIF time minus MRK time over a flight; the differences (time zone, GPS-UTC
     leap seconds, the camera clock's error) are constant for one flight, and are folded into one quarter
     hour of the first one so a zone does not count; None when fewer than two photos have an EXIF time."""
     from ..gnss.gnss_time import gps_time_s_to_datetime
-    from ..photo.images import read_image_info
 
     diffs = []
     for p, t_gps in zip(photos, mrk_gps_s.tolist()):
-        try:
-            t = read_image_info(p, warn=False).time_original
-        except InputFileError:
-            continue
+        t = infos[p].time_original if p in infos else None
         if t is None:
             continue
         d = (t.replace(tzinfo=None) - gps_time_s_to_datetime(t_gps)).total_seconds()
@@ -246,7 +257,8 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
     for g in joined.flight_gaps:
         warnings.append(f"{g.duration_s:.0f} s between flights {flights[g.before_flight].folder.name} and "
                         f"{flights[g.after_flight].folder.name}")
-    _check_one_aircraft(flights, warnings)
+    infos = read_photo_infos([p for f in flights for p in f.photos])
+    _check_one_aircraft(flights, infos, warnings)
     inputs_dir = out / "inputs"
     image_dir = inputs_dir / "images"
     image_dir.mkdir(parents=True, exist_ok=True)
@@ -254,7 +266,7 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
     clash = len(set(all_names)) < len(all_names)
     rows_out = []
     for fi, (flight, mrk) in enumerate(zip(flights, mrks)):
-        rows, w = match_photos_to_exposures(flight, mrk)
+        rows, w = match_photos_to_exposures(flight, mrk, infos)
         warnings += w
         flight.exposure_of_photo = rows
         for photo, r in zip(flight.photos, rows):
@@ -299,17 +311,14 @@ def read_camera_offsets(path: Path) -> dict[str, np.ndarray]:
                 for r in csv.DictReader(f)}
 
 
-def _check_one_aircraft(flights: list[DjiFlight], warnings: list[str]) -> None:
+def _check_one_aircraft(flights: list[DjiFlight], infos: dict, warnings: list[str]) -> None:
     """Photos of one flight from two cameras are refused; flights of different aircraft are named."""
-    from ..photo.images import read_image_info
-
     models_by_flight = []
     for fl in flights:
         models: dict[str, list[str]] = {}
         for p in fl.photos:
-            try:
-                info = read_image_info(p, warn=False)
-            except InputFileError:
+            info = infos.get(p)
+            if info is None:
                 continue
             models.setdefault(f"{info.make or '?'} {info.model or '?'} {info.width}x{info.height}", []).append(p.name)
         if len(models) > 1:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import time
@@ -94,3 +95,45 @@ def run_demo5(conf, files, out) -> float:
     if rc != 0:
         raise RuntimeError(f"demo5 postpos failed ({rc}) on {conf}")
     return elapsed
+
+
+# ------------------------------------------------------------------------------------------ RTCM 3 decoding
+UNIX_MINUS_GPS_S = 315964800      # RTKLIB's gtime_t counts Unix seconds
+
+
+def rtklib_sat_id(rtk, sat: int) -> str:
+    """'G05', 'R12', 'J02', ... of an RTKLIB satellite number."""
+    letters = {rtk.SYS_GPS: "G", rtk.SYS_GLO: "R", rtk.SYS_GAL: "E", rtk.SYS_QZS: "J", rtk.SYS_CMP: "C"}
+    prn = rtk.Arr1Dint(1)
+    system = rtk.satsys(sat, prn)
+    return f"{letters[system]}{prn[0] - (192 if system == rtk.SYS_QZS else 0):02d}"
+
+
+def rtklib_gtime(rtk, t_gps_s: float):
+    """RTKLIB's gtime_t of a gps_time_s."""
+    g = rtk.gtime_t()
+    g.time = int(math.floor(t_gps_s)) + UNIX_MINUS_GPS_S
+    g.sec = float(t_gps_s - math.floor(t_gps_s))
+    return g
+
+
+def rtklib_decode_rtcm3(rtk, data: bytes, t_start_gps_s: float):
+    """RTKLIB demo5's decoding of an RTCM 3 stream, byte by byte (input_rtcm3), dated from a time near its
+    start: (rows (gps_time_s, sat, code, P, L, D, SNR, LLI) of every signal, number of epochs, the rtcm_t
+    with its final navigation data)."""
+    r = rtk.rtcm_t()
+    rtk.init_rtcm(r)
+    r.time = rtklib_gtime(rtk, float(int(t_start_gps_s)))
+    rows, epochs = [], 0
+    for b in data:
+        if rtk.input_rtcm3(r, b) != 1:
+            continue
+        epochs += 1
+        for i in range(r.obs.n):
+            d = r.obs.data[i]
+            sat = rtklib_sat_id(rtk, d.sat)
+            t = d.time.time - UNIX_MINUS_GPS_S + d.time.sec
+            for k in range(3):
+                if d.code[k]:
+                    rows.append((t, sat, rtk.code2obs(d.code[k]), d.P[k], d.L[k], d.D[k], d.SNR[k], d.LLI[k]))
+    return rows, epochs, r

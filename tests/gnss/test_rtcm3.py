@@ -11,9 +11,9 @@ from georef_core.errors import InputFileError
 from georef_core.gnss.ephemeris import ephemeris_states
 from georef_core.gnss.rtcm3 import (_lock_ms_msm6, decode_rtcm3_bytes, find_rtcm3_frames, looks_like_rtcm3,
                                     read_rtcm3)
+from .rtklib_cases import UNIX_MINUS_GPS_S, rtklib_decode_rtcm3, rtklib_gtime, rtklib_sat_id
 from tests.shared_data import dji_auckland_dir
 
-UNIX_MINUS_GPS_S = 315964800
 PPKRAW = dji_auckland_dir() / "100_0004_PPKRAW.bin"
 needs_log = pytest.mark.skipif(not PPKRAW.is_file(), reason="shared DJI data not available")
 
@@ -31,25 +31,7 @@ def ours():
 @pytest.fixture(scope="module")
 def theirs(rtk, ours):
     """RTKLIB's decoding of the same log: observation rows and the final navigation data."""
-    r = rtk.rtcm_t()
-    rtk.init_rtcm(r)
-    g = rtk.gtime_t()
-    g.time = int(ours.observations.gps_time_s[0]) + UNIX_MINUS_GPS_S
-    r.time = g
-    letters = {rtk.SYS_GPS: "G", rtk.SYS_GLO: "R", rtk.SYS_GAL: "E", rtk.SYS_QZS: "J", rtk.SYS_CMP: "C"}
-    prn = rtk.Arr1Dint(1)
-    rows = []
-    for b in PPKRAW.read_bytes():
-        if rtk.input_rtcm3(r, b) != 1:
-            continue
-        for i in range(r.obs.n):
-            d = r.obs.data[i]
-            system = rtk.satsys(d.sat, prn)
-            sat = f"{letters[system]}{prn[0] - (192 if system == rtk.SYS_QZS else 0):02d}"
-            t = d.time.time - UNIX_MINUS_GPS_S + d.time.sec
-            for k in range(3):
-                if d.code[k]:
-                    rows.append((t, sat, rtk.code2obs(d.code[k]), d.P[k], d.L[k], d.D[k], d.SNR[k], d.LLI[k]))
+    rows, _, r = rtklib_decode_rtcm3(rtk, PPKRAW.read_bytes(), float(ours.observations.gps_time_s[0]))
     return rows, r.nav
 
 
@@ -110,18 +92,11 @@ def test_ephemerides_match_rtklib(ours, theirs, rtk):
     RTKLIB's own decoding of the same messages (GPS, GLONASS; same toe, stale records included)."""
     _, rnav = theirs
     nav = ours.navigation
-    letters = {rtk.SYS_GPS: "G", rtk.SYS_GLO: "R", rtk.SYS_GAL: "E", rtk.SYS_QZS: "J", rtk.SYS_CMP: "C"}
-    prn = rtk.Arr1Dint(1)
-
     def sat_of(n):
-        system = rtk.satsys(n, prn)
-        return f"{letters[system]}{prn[0]:02d}"
+        return rtklib_sat_id(rtk, n)
 
     def gtime(t):
-        g = rtk.gtime_t()
-        g.time = int(np.floor(t)) + UNIX_MINUS_GPS_S
-        g.sec = float(t - np.floor(t))
-        return g
+        return rtklib_gtime(rtk, t)
 
     # records keyed by satellite, toe within the week and issue: the weeks of stale records differ by one
     # (demo5 moves a toe more than half a week from the stream time by a week; here it keeps its message

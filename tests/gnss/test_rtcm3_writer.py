@@ -33,9 +33,8 @@ from georef_core.gnss.rtcm3_writer import (
     msm_lock_indicator,
 )
 
-from .rtklib_cases import shared_gnss_dir
+from .rtklib_cases import UNIX_MINUS_GPS_S, rtklib_decode_rtcm3, rtklib_gtime, rtklib_sat_id, shared_gnss_dir
 
-UNIX_MINUS_GPS_S = 315964800
 T0 = float(calendar_to_gps_time_s(2024, 6, 24, 10, 0, 0))
 FCN = {"R03": -4, "R14": 3}
 PR_STEP_MS = {4: 2.0**-24, 5: 2.0**-24, 6: 2.0**-29, 7: 2.0**-29}
@@ -303,27 +302,7 @@ def rtk():
 
 
 def _rtklib_rows(rtk, data: bytes, t_start: float):
-    r = rtk.rtcm_t()
-    rtk.init_rtcm(r)
-    g = rtk.gtime_t()
-    g.time = int(t_start) + UNIX_MINUS_GPS_S
-    r.time = g
-    letters = {rtk.SYS_GPS: "G", rtk.SYS_GLO: "R", rtk.SYS_GAL: "E", rtk.SYS_QZS: "J", rtk.SYS_CMP: "C"}
-    prn = rtk.Arr1Dint(1)
-    rows, epochs = [], 0
-    for b in data:
-        if rtk.input_rtcm3(r, b) != 1:
-            continue
-        epochs += 1
-        for i in range(r.obs.n):
-            d = r.obs.data[i]
-            system = rtk.satsys(d.sat, prn)
-            sat = f"{letters[system]}{prn[0] - (192 if system == rtk.SYS_QZS else 0):02d}"
-            t = d.time.time - UNIX_MINUS_GPS_S + d.time.sec
-            for k in range(3):
-                if d.code[k]:
-                    rows.append((t, sat, rtk.code2obs(d.code[k]), d.P[k], d.L[k], d.D[k], d.SNR[k], d.LLI[k]))
-    return rows, epochs, r
+    return rtklib_decode_rtcm3(rtk, data, t_start)
 
 
 @pytest.mark.parametrize("msm", [4, 7])
@@ -473,18 +452,11 @@ def test_ephemerides_decoded_by_rtklib(eph_case, rtk):
     (1 cm) and clocks (1e-10 s)."""
     records, enc, log = eph_case
     _, _, r = _rtklib_rows(rtk, enc.data, log.observations.gps_time_s[0])
-    letters = {rtk.SYS_GPS: "G", rtk.SYS_GLO: "R", rtk.SYS_GAL: "E", rtk.SYS_QZS: "J", rtk.SYS_CMP: "C"}
-    prn = rtk.Arr1Dint(1)
-
     def sat_of(n):
-        system = rtk.satsys(n, prn)
-        return f"{letters[system]}{prn[0] - (192 if system == rtk.SYS_QZS else 0):02d}"
+        return rtklib_sat_id(rtk, n)
 
     def gtime(t):
-        g = rtk.gtime_t()
-        g.time = int(np.floor(t)) + UNIX_MINUS_GPS_S
-        g.sec = float(t - np.floor(t))
-        return g
+        return rtklib_gtime(rtk, t)
 
     kepler = {}
     for i in range(r.nav.n):
