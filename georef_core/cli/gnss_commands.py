@@ -37,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
     p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
     p.add_argument("--no-base-interpolation", action="store_true", help="no interpolation: each rover epoch takes the nearest base epoch, older or newer (as RTKLIB demo5)")
+    p.add_argument("--no-reverse-witness", action="store_true",
+                   help="forward/backward: do not run the other pass as a witness (fixes it contradicts are "
+                        "otherwise output as float; docs/gnss.md)")
     p.add_argument("--tdcp-slips", type=float, metavar="M",
                    help="threshold of the check for slips the receivers did not flag (time-differenced carrier "
                         "phase), m (default 0.05; 0 = off)")
@@ -96,6 +99,8 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
         changes["max_age_s"] = args.max_age
     if args.no_base_interpolation:
         changes["base_interpolation"] = False
+    if args.no_reverse_witness:
+        changes["reverse_witness"] = False
     if args.tdcp_slips is not None:
         changes["slip_tdcp_threshold_m"] = args.tdcp_slips
     if args.hold_variance is not None:

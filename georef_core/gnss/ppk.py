@@ -18,6 +18,7 @@ from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
 from .fix_continuity import refuse_jumping_fixes
+from .fix_witness import PhaseArbiter, refuse_contradicted_fixes
 from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .gnss_time import gps_time_s_to_datetime
 from .input_files import load_navigation, load_observations
@@ -330,27 +331,35 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
     conflicts = None
     arrays, config = flt.arrays(), flt.config()
 
-    def run_pass(backward: bool, start):
+    def run_pass(backward: bool, start, stage: int = 2, role: str = ""):
         if progress:
-            progress(f"Kalman filter, {'backward' if backward else 'forward'} pass",
-                     3 if backward and opts.filter_direction == "combined" else 2, 4)
+            progress(f"Kalman filter, {'backward' if backward else 'forward'} pass{role}", stage, 4)
         # fixes the carrier phase contradicts (a jump against the neighbouring fixes) get their float back
         return refuse_jumping_fixes(arrays, config, flt.run(backward=backward, known_start_ecef_m=start))[0]
 
-    if opts.filter_direction == "forward":
-        out = run_pass(False, known)
-    elif opts.filter_direction == "backward":
-        out = run_pass(True, None)
-    else:
+    def backward_start(fwd):
+        """known-start: the backward pass starts from the forward pass's last fixed position."""
+        if known is None:
+            return None
+        fixed = np.nonzero(fwd.status == STATUS_FIX)[0]
+        return fwd.position_ecef_m[fixed[-1]] if len(fixed) else None
+
+    arbiter = PhaseArbiter(data, opts)
+    if opts.filter_direction == "combined":
         fwd = run_pass(False, known)
-        back_known = None
-        if known is not None:
-            fixed = np.nonzero(fwd.status == STATUS_FIX)[0]
-            back_known = fwd.position_ecef_m[fixed[-1]] if len(fixed) else None
-        bwd = run_pass(True, back_known)
-        out, conflicts = combine(fwd, bwd)
+        bwd = run_pass(True, backward_start(fwd), 3)
+        out, conflicts = combine(fwd, bwd, arbiter)
         # the two passes' fixes side by side can jump where the combination changes pass
         out = refuse_jumping_fixes(arrays, config, out)[0]
+    elif opts.filter_direction == "forward":
+        out = run_pass(False, known)
+        if opts.reverse_witness:
+            # the fixes the backward pass contradicts are not output as fixed (fix_witness.py)
+            out, conflicts = refuse_contradicted_fixes(out, run_pass(True, backward_start(out), 3, " (witness)"), arbiter)
+    else:
+        out = run_pass(True, None)
+        if opts.reverse_witness:
+            out, conflicts = refuse_contradicted_fixes(out, run_pass(False, known, 3, " (witness)"), arbiter)
     timings["filter"] = _time.perf_counter() - t0
     clock_g = spp.clock_bias_m[:, CLOCK_COLUMN["G"]] if spp.clock_bias_m.size else np.zeros(len(data.time_s))
     clock_g = np.where(spp.valid, clock_g, np.nan)

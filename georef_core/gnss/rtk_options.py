@@ -18,6 +18,7 @@ class RtkOptions:
     n_bands: int = 2                   # 1 = L1 only, 2 = L1+L2 (E5b for Galileo, B2 for BeiDou), 3 = +L5
     systems: tuple[str, ...] = ("G", "R", "E", "J", "C")
     filter_direction: str = "combined"  # forward | backward | combined
+    reverse_witness: bool = True       # forward/backward: the other pass runs too and refutes contradicted fixes
     elevation_mask_deg: float = 15.0
     snr_mask_dbhz: float = 0.0         # 0 = off
     excluded_sats: tuple[str, ...] = ()

@@ -39,6 +39,9 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
         "epochs": int(len(sol.time_s)),
         "fix": int(np.sum(sol.status == 1)), "float": int(np.sum(sol.status == 2)), "single": int(np.sum(sol.status == 5)),
         "fix_rate": round(sol.fix_rate, 4),
+        # epochs both filter directions fixed more than 5 cm apart (fix_witness.py): not output as fixed
+        # unless the carrier phase decided between them
+        "fix_conflicts": int(np.sum(sol.fix_conflicts)) if sol.fix_conflicts is not None else 0,
         "base_position_ecef_m": [round(float(v), 4) for v in sol.base_position_ecef_m],
         "outputs": {"pos": str(out_pos), "parquet": str(parquet_path)},
         "timings_s": {k: round(v, 3) for k, v in sol.timings_s.items()},
@@ -133,8 +136,9 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
 
     found = found if found is not None else survey_inputs(survey_dir, out_dir)   # georef passes its own
     rovers, bases, navs = found.rover_files, found.base_files, found.nav_files
-    if not rovers and not bases and not (survey_dir / "rover").is_dir() and found.image_names:
-        # photos alone (RTK-tagged or EXIF GPS): nothing to solve; the georef step uses their positions
+    if not rovers and not bases and not (survey_dir / "rover").is_dir():
+        # photos alone (RTK-tagged or EXIF GPS): nothing to solve; the georef step uses their positions (the
+        # platform's GNSS step sees the observation files only, not the photos: no photos is no reason to fail)
         out.mkdir(parents=True, exist_ok=True)
         summary = {"skipped": True, "reason": "no raw GNSS log and no base: the photos' own positions (RTK XMP or "
                                               "EXIF GPS) georeference the survey", "inputs": found.summary(),
@@ -170,6 +174,10 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
                 kw[field] = cast(opt[key])
             except (TypeError, ValueError):
                 raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
+    if opt.get("reverse_witness") is not None:
+        if not isinstance(opt["reverse_witness"], bool):
+            raise ProcessingError(f"GNSS settings: reverse_witness {opt['reverse_witness']!r} is not true or false")
+        kw["reverse_witness"] = opt["reverse_witness"]
     if opt.get("navsys"):
         kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())
     if mode == "known-start":

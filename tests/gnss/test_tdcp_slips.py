@@ -92,17 +92,22 @@ def _output(status, pos):
 
 
 def test_combined_solution_does_not_take_a_lone_fix_against_a_float():
-    """A fix alone in its pass (float before and after) where the other pass is float gives the float
-    (the u-blox walk's only combined fixes the carrier phase contradicts were such); a fix with a fixed
-    neighbour is taken as before."""
+    """A fix alone in its pass (float before and after) where the other pass is float is refused: the epoch
+    is the covariance-weighted mean of the two floats (the u-blox walk's only combined fixes the carrier
+    phase contradicts were such); a fix with a fixed neighbour is taken as before."""
     f, x = STATUS_FLOAT, STATUS_FIX
     fwd = _output([f, f, f, x, x, f, x], np.zeros((7, 3)))
     bwd = _output([f, x, f, f, f, f, f], np.ones((7, 3)))
+    for p in (fwd, bwd):      # each pass's float solution: zeros forward, 2 m backward
+        p.float_position_ecef_m = np.full((7, 3), 0.0 if p is fwd else 2.0)
+        p.float_covariance_ecef_m2 = p.covariance_ecef_m2.copy()
+        p.position_ecef_m[p.status == f] = p.float_position_ecef_m[p.status == f]
     out, conflict = combine(fwd, bwd)
     assert list(out.status) == [f, f, f, x, x, f, f]
-    np.testing.assert_array_equal(out.position_ecef_m[1], np.zeros(3))     # forward's float at the lone fix
-    np.testing.assert_array_equal(out.position_ecef_m[3], np.zeros(3))     # forward's run of two fixes
-    np.testing.assert_array_equal(out.position_ecef_m[6], np.ones(3))      # forward's lone fix at the end
+    assert not conflict.any()
+    np.testing.assert_allclose(out.position_ecef_m[1], np.ones(3))      # the mean of the floats, not the lone fix
+    np.testing.assert_array_equal(out.position_ecef_m[3], np.zeros(3))   # forward's run of two fixes
+    np.testing.assert_allclose(out.position_ecef_m[6], np.ones(3))      # forward's lone fix at the end: refused too
 
 
 def test_combined_solution_keeps_the_smoothed_float_beside_the_fix():
