@@ -47,12 +47,6 @@ def ecef_delta_to_enu_m(delta_ecef_m, origin_ecef_m) -> np.ndarray:
     return np.asarray(delta_ecef_m, dtype=float) @ ecef_to_enu_rotation(lat, lon).T
 
 
-def ecef_covariance_to_enu(cov_ecef_m2, origin_ecef_m) -> np.ndarray:
-    lat, lon, _ = ecef_to_geodetic(np.asarray(origin_ecef_m, dtype=float))
-    r = ecef_to_enu_rotation(lat, lon)
-    return r @ np.asarray(cov_ecef_m2) @ r.T
-
-
 def azimuth_elevation_rad(receiver_ecef_m, sat_ecef_m) -> tuple[np.ndarray, np.ndarray]:
     """Azimuth and elevation (radians) of satellites (N,3) seen from one receiver position (3,)."""
     rcv = np.asarray(receiver_ecef_m, dtype=float)

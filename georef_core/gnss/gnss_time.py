@@ -61,10 +61,6 @@ def gps_time_s_to_datetime(t_s: float) -> _dt.datetime:
     return GPS_EPOCH + _dt.timedelta(seconds=float(t_s))
 
 
-def week_tow_to_gps_time_s(week: int, tow_s: float) -> float:
-    return week * SECONDS_PER_WEEK + tow_s
-
-
 def gps_time_s_to_week_tow(t_s: float) -> tuple[int, float]:
     week = int(np.floor(t_s / SECONDS_PER_WEEK))
     return week, t_s - week * SECONDS_PER_WEEK

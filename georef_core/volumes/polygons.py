@@ -199,23 +199,3 @@ def read_polygons(path, crs=None) -> list[AreaPolygon]:
                 raise InputFileError(p, f"the file declares {crs_label(src_crs)} but the coordinates of {a.name!r} are "
                                         "not degrees; wrong CRS?")
     return out
-
-
-def polygons_in_crs(path, dst_crs, crs=None) -> list[AreaPolygon]:
-    """``read_polygons`` reprojected to ``dst_crs`` (the DSM's)."""
-    return [a.to_crs(dst_crs) for a in read_polygons(path, crs)]
-
-
-def write_polygons_geojson(path, polygons: list[AreaPolygon], extra_properties: dict | None = None) -> None:
-    """A FeatureCollection with a legacy ``crs`` member (projected CRSs) and each polygon's properties."""
-    feats = []
-    for a in polygons:
-        props = dict(a.properties)
-        props["name"] = a.name
-        if extra_properties and a.name in extra_properties:
-            props.update(extra_properties[a.name])
-        feats.append({"type": "Feature", "properties": props, "geometry": a.to_geojson_geometry(9 if a.crs.is_geographic else 4)})
-    doc = {"type": "FeatureCollection", "features": feats}
-    if polygons and not (polygons[0].crs.to_epsg() == 4326):
-        doc["crs"] = {"type": "name", "properties": {"name": crs_label(polygons[0].crs)}}
-    Path(path).write_text(json.dumps(doc, indent=1))

@@ -207,12 +207,6 @@ def read_window(info: RasterInfo, window: GridWindow) -> np.ndarray:
         return r.read(window)
 
 
-def resample_onto(path, window: GridWindow, dst_crs, what: str = "surface") -> np.ndarray:
-    """Raster ``path`` (any CRS and grid) resampled bilinearly onto ``window``'s cell centres in ``dst_crs``;
-    float32 with NaN where it has no data. Reads only the part of ``path`` the window needs."""
-    return WindowResampler(path, dst_crs, what)(window)
-
-
 class WindowResampler:
     """Resamples one raster onto many windows of a destination grid (row blocks of a change map) with
     bilinear interpolation, reading only the source rows each window needs."""
