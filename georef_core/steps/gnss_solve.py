@@ -136,13 +136,20 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
 
     found = found if found is not None else survey_inputs(survey_dir, out_dir)   # georef passes its own
     rovers, bases, navs = found.rover_files, found.base_files, found.nav_files
-    if not rovers and not bases and not (survey_dir / "rover").is_dir():
+    if not rovers and not (survey_dir / "rover").is_dir():
         # photos alone (RTK-tagged or EXIF GPS): nothing to solve; the georef step uses their positions (the
-        # platform's GNSS step sees the observation files only, not the photos: no photos is no reason to fail)
+        # platform's GNSS step sees the observation files only, not the photos: no photos is no reason to fail).
+        # A base without the drone's raw log (a DJI flight folder with photos and MRK but no *_PPKRAW.bin) is
+        # the same: PPK needs both receivers; said in a warning, not an error (the photos still carry positions)
         out.mkdir(parents=True, exist_ok=True)
-        summary = {"skipped": True, "reason": "no raw GNSS log and no base: the photos' own positions (RTK XMP or "
-                                              "EXIF GPS) georeference the survey", "inputs": found.summary(),
-                   "warnings": found.warnings}
+        warnings = list(found.warnings)
+        if bases:
+            warnings.append(f"base observations given ({', '.join(Path(b).name for b in bases)}) but no raw GNSS log "
+                            f"of the drone (e.g. DJI *_PPKRAW.bin or *_Rinex.obs beside the photos): PPK needs "
+                            f"both, so the photos' own positions (RTK XMP or EXIF GPS) georeference the survey")
+        reason = ("no raw GNSS log of the drone" + (" (a base alone cannot be solved)" if bases else " and no base")
+                  + ": the photos' own positions (RTK XMP or EXIF GPS) georeference the survey")
+        summary = {"skipped": True, "reason": reason, "inputs": found.summary(), "warnings": warnings}
         (out / "summary.json").write_text(json.dumps(summary, indent=2))
         if progress:
             progress("gnss", 1, 1)

@@ -200,3 +200,23 @@ def test_a_rover_cut_mid_record_is_named_in_the_solution(tmp_path):
     assert s["epochs"] < 120
     assert any("rover:" in w and "ends inside this epoch record (truncated file?)" in w for w in s["warnings"]), \
         s["warnings"]
+
+
+def test_dji_flight_with_a_base_but_no_raw_log_skips_ppk_with_a_warning(tmp_path):
+    """A DJI RTK flight folder (photos + MRK, no *_PPKRAW.bin) beside a base: nothing to solve (PPK needs the
+    drone's raw log too); the GNSS step says so and leaves the photos' positions to the georef step, where
+    it used to fail with 'no rover observation file'."""
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    survey = tmp_path / "survey"
+    _flight(survey / "flight1", [T0 + 2.0 * i for i in range(4)])
+    (survey / "base").mkdir()
+    shutil.copy(GSI / "30400920.05o", survey / "base")
+    s = run_survey_gnss(survey, tmp_path / "out")
+    assert s["skipped"] is True and "a base alone cannot be solved" in s["reason"]
+    assert any("30400920.05o" in w and "no raw GNSS log of the drone" in w for w in s["warnings"])
+    assert json.loads((tmp_path / "out" / "ppk" / "summary.json").read_text())["skipped"] is True
+    # a standard layout that names a rover folder still has to hold a log
+    (survey / "rover").mkdir()
+    with pytest.raises(InputFileError, match="no rover observation file"):
+        run_survey_gnss(survey, tmp_path / "out2")
