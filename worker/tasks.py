@@ -268,7 +268,7 @@ def execute_step(run_id: str, step: str) -> str:
             survey_dir, out_dir = materialise(storage, run, step, run_dir)
             before = _manifest(out_dir)
             if step == "report":
-                run["volumes"] = jobs.volumes_of_run(db, run_id)
+                run["volumes"] = jobs.volumes_of_run(db, run_id, with_material=True)
                 if run.get("previous_run_id"):
                     with db.session(read_only=True) as s:
                         prev = run_metrics(s, storage, run["previous_run_id"])
@@ -276,7 +276,12 @@ def execute_step(run_id: str, step: str) -> str:
             t0 = time.monotonic()
             summary = pipeline.REGISTRY[step].adapter(survey_dir, out_dir, dict(run["settings"].get(step) or {}),
                                                       live.progress, run) or {}
-            volumes = summary.pop("_volumes", None) if isinstance(summary, dict) else None
+            if step in ("gnss", "georef"):   # when the survey was flown, from its data (jobs.finish_step stores it)
+                from georef_core.steps.flight_time import add_flight_time
+
+                add_flight_time(summary, survey_dir, out_dir)
+            # what the platform stores of the step's results is read from its declared outputs
+            volumes = pipeline.stored_volumes(out_dir) if step == "volumes" else None
             summary = json.loads(_relative(json.dumps(summary, default=str), run_dir))
             summary["duration_s"] = round(time.monotonic() - t0, 2)
             if live.lost:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from datetime import date, datetime
 from typing import Any
 
 from fastapi import Request, Response
@@ -13,6 +14,7 @@ from pydantic import BaseModel
 
 from ..core.etag import bytes_etag, if_none_match_hits, version_etag
 from ..core.problems import RangeNotSatisfiable
+from ..services.display import iso_time
 from ..services.pagination import Page
 from ..storage import Storage, blob_key
 
@@ -25,9 +27,19 @@ def _dump(data: Any) -> Any:
     return data
 
 
+def _json_value(value: Any) -> Any:
+    """What json cannot write itself: times as ISO 8601 with 'T' and the zone ('Z' for UTC, as the schemas
+    write them; a naive time is UTC), anything else as its text."""
+    if isinstance(value, datetime):
+        return iso_time(value)
+    if isinstance(value, date):
+        return value.isoformat()
+    return str(value)
+
+
 def json_response(request: Request, data: Any, status_code: int = 200, etag: str | None = None,
                   headers: dict | None = None) -> Response:
-    body = json.dumps(_dump(data), separators=(",", ":"), default=str).encode()
+    body = json.dumps(_dump(data), separators=(",", ":"), default=_json_value).encode()
     tag = etag or bytes_etag(body)
     h = {"ETag": tag, "Cache-Control": "private, no-cache", **(headers or {})}
     if status_code == 200 and request.method in ("GET", "HEAD") and if_none_match_hits(
@@ -83,7 +95,9 @@ def bytes_response(request: Request, body: bytes, media_type: str, etag: str, fi
     return Response(body, media_type=media_type, headers=h)
 
 
-_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
+# at most 18 digits a position (any file is shorter than 10**18 bytes): a longer number is refused as
+# unsatisfiable before int() is asked to convert it (Python refuses more than 4300 digits: was a 500)
+_RANGE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
 
 
 SMALL_FILE_BYTES = 1 << 20

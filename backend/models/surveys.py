@@ -15,6 +15,9 @@ class Survey(IdMixin, TimestampMixin, VersionMixin, Base):
     site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(200))
     flown_at: Mapped[datetime | None] = mapped_column(default=None)
+    # where flown_at comes from: "user" (given), or read from the data by a run: "gnss" (GNSS solution),
+    # "dji-mrk" (MRK exposures), "exif" (photos' DateTimeOriginal); None with a date: given (before 0004)
+    flown_at_source: Mapped[str | None] = mapped_column(String(16), default=None)
     notes: Mapped[str] = mapped_column(Text, default="")
     settings: Mapped[dict] = mapped_column(JSON, default=dict)     # processing options of this survey
     created_by: Mapped[str | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), default=None)

@@ -1,13 +1,13 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
 
 from pydantic import BaseModel, Field
 
 from .common import ORM
 
-StepName = Literal["gnss", "georef", "dense", "volumes", "report"]
+# a step of the catalogue (GET /steps); unknown names are refused by the service with a 422 naming them
+StepName = str
 
 
 class RunIn(BaseModel):

@@ -3,7 +3,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, computed_field
 
 from .common import ORM
 
@@ -83,6 +83,13 @@ class StockpileOut(ORM):
     created_at: datetime
     updated_at: datetime
     version: int
+
+    @computed_field(description="the material as people read it ('crushed_stone' -> 'Crushed stone'; words as typed)")
+    @property
+    def material_label(self) -> str:
+        from ..services.display import material_label
+
+        return material_label(self.material)
 
 
 class VolumePointOut(BaseModel):

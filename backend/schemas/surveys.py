@@ -27,6 +27,8 @@ class SurveyOut(ORM):
     site_id: str
     name: str
     flown_at: datetime | None
+    flown_at_source: str | None = Field(default=None, description="'user' (given), or read from the survey's data "
+                                        "by a run: 'gnss', 'dji-mrk', 'exif'")
     notes: str
     settings: dict
     created_at: datetime

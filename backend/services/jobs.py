@@ -96,18 +96,51 @@ def run_context(db: Database, run_id: str) -> dict:
                 "inputs": dict(run.inputs), "steps": list(run.steps), "number": run.number,
                 "previous_run_id": run.previous_run_id,
                 "site": {"name": site.name, "crs": site.crs, "vertical_datum": site.vertical_datum, "geoid": site.geoid},
-                "survey": {"name": survey.name, "flown_at": survey.flown_at.isoformat() if survey.flown_at else None},
+                "survey": {"name": survey.name, "flown_at": survey.flown_at.isoformat() if survey.flown_at else None,
+                           "flown_at_source": survey.flown_at_source},
                 "stockpiles": [{"id": p.id, "name": p.name, "outline": p.outline, "base": p.base} for p in piles],
                 "step_states": [{"name": st.name, "state": st.state, "error": st.error} for st in steps],
                 "outputs": [{"step": o.step_name, "path": o.path, "sha256": o.sha256, "size": o.size} for o in outputs]}
 
 
-def volumes_of_run(db: Database, run_id: str) -> list[dict]:
+def volumes_of_run(db: Database, run_id: str, with_material: bool = False) -> list[dict]:
+    """The run's volume rows (as finish_step stores them); ``with_material``: each with its stockpile's
+    material too (the report shows it; not a column of the measurement)."""
+    from ..models import Stockpile
+
     with db.session(read_only=True) as s:
-        return [{"stockpile_id": v.stockpile_id, "stockpile_name": v.stockpile_name, "base": v.base,
-                 "volume_m3": v.volume_m3, "fill_m3": v.fill_m3, "cut_m3": v.cut_m3, "area_m2": v.area_m2,
-                 "details": v.details}
-                for v in s.scalars(select(VolumeMeasurement).where(VolumeMeasurement.run_id == run_id))]
+        rows = list(s.scalars(select(VolumeMeasurement).where(VolumeMeasurement.run_id == run_id)))
+        out = [{"stockpile_id": v.stockpile_id, "stockpile_name": v.stockpile_name, "base": v.base,
+                "volume_m3": v.volume_m3, "fill_m3": v.fill_m3, "cut_m3": v.cut_m3, "area_m2": v.area_m2,
+                "details": v.details} for v in rows]
+        if with_material:
+            ids = [v["stockpile_id"] for v in out if v["stockpile_id"]]
+            materials = dict(s.execute(select(Stockpile.id, Stockpile.material).where(Stockpile.id.in_(ids))).all()) \
+                if ids else {}
+            for v in out:
+                v["material"] = materials.get(v["stockpile_id"]) or ""
+        return out
+
+
+def record_flight_time(s, survey_id: str, flight_time) -> None:
+    """The flight time a step read from the survey's data (summary ``flight_time``: start, source) becomes the
+    survey's ``flown_at`` unless someone gave one; the survey's volume measurements follow it."""
+    from datetime import datetime
+
+    from .surveys import set_flown_at
+
+    if not isinstance(flight_time, dict) or not isinstance(flight_time.get("start"), str):
+        return
+    survey = s.get(Survey, survey_id)
+    if survey is None or survey.flown_at_source == "user" or (survey.flown_at and survey.flown_at_source is None):
+        return
+    try:
+        start = datetime.fromisoformat(flight_time["start"].replace("Z", "+00:00"))
+    except ValueError:
+        return
+    source = str(flight_time.get("source") or "data")[:16]
+    if survey.flown_at != start or survey.flown_at_source != source:
+        set_flown_at(s, survey, start, source)
 
 
 def find_reusable(db: Database, survey_id: str, step: str, input_hash: str, run_id: str):
@@ -131,10 +164,13 @@ def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple
     """Record the outputs and mark the step done, queue the next; (recorded, messages to send). With the
     storage, a run that ends here gets its comparison with the previous run in the same transaction."""
     now = utcnow()
+    # a step with nothing to do (the GNSS step of a survey of photos alone) ends "skipped" with its reason
+    nothing_to_do = not reused_from and isinstance(summary, dict) and summary.get("skipped") is True
     with db.session() as s:
         n = s.execute(update(RunStep).where(RunStep.id == claim.step_id, RunStep.attempt == claim.attempt,
                                             RunStep.state == "running")
-                      .values(state="skipped" if reused_from else "succeeded", finished_at=now, heartbeat_at=now,
+                      .values(state="skipped" if reused_from or nothing_to_do else "succeeded", finished_at=now,
+                              heartbeat_at=now,
                               input_hash=input_hash, summary=summary, reused_from_step_id=reused_from,
                               progress_stage="done", error=None)).rowcount
         if n != 1:
@@ -143,6 +179,8 @@ def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple
         # a file an earlier step wrote and this one rewrote now belongs to this step
         s.execute(delete(RunOutput).where(RunOutput.run_id == claim.run_id,
                                           RunOutput.path.in_([o[0] for o in outputs])))
+        if isinstance(summary, dict) and summary.get("flight_time"):
+            record_flight_time(s, claim.survey_id, summary["flight_time"])
         if volumes is not None:
             s.execute(delete(VolumeMeasurement).where(VolumeMeasurement.run_id == claim.run_id))
             run = s.get(Run, claim.run_id)
@@ -152,9 +190,13 @@ def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple
                                         measured_at=survey.flown_at or run.created_at, **v))
         for path, sha, size in outputs:
             s.add(RunOutput(run_id=claim.run_id, step_name=claim.step, path=path, sha256=sha, size=size))
-        add_log(s, claim.run_id, (f"step {claim.step} reused identical earlier result ({len(outputs)} files)"
-                                  if reused_from else f"step {claim.step} done: {len(outputs)} output files"),
-                claim.step)
+        if nothing_to_do:
+            add_log(s, claim.run_id, f"step {claim.step} skipped: {summary.get('reason') or 'nothing to do'}",
+                    claim.step, "warning")
+        else:
+            add_log(s, claim.run_id, (f"step {claim.step} reused identical earlier result ({len(outputs)} files)"
+                                      if reused_from else f"step {claim.step} done: {len(outputs)} output files"),
+                    claim.step)
         s.flush()
         return True, _advance(s, claim.run_id, storage)
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from xml.sax.saxutils import escape
 
 from . import result_files
+from .display import format_flight_time, format_volume, format_volume_pm, material_label
 
 # characters XML 1.0 does not allow (the Paragraph parser is XML-like): replaced, not passed through
 _BAD_CHARS = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffe\uffff]")
@@ -56,7 +57,8 @@ def _fmt(v, nd=3, unit=""):
 
 def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
     """Write the PDF; returns a summary of what it contains. `meta`: site, crs, vertical_datum, survey,
-    flown_at, run_number, steps [{name, state, error}], volumes [{name, base, volume_m3}],
+    flown_at, flown_at_source, run_number, steps [{name, state, error}], volumes [{name, base, volume_m3,
+    sigma_m3, material}],
     previous {run_number, volumes {name: m3}, rmse_d_m}."""
     from reportlab.lib import colors
     from reportlab.lib.pagesizes import A4
@@ -94,7 +96,7 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
     story.append(Paragraph(
         f"Site <b>{_esc(meta.get('site', ''))}</b>, project CRS {_esc(meta.get('crs', ''))}"
         + (f", vertical datum {_esc(meta['vertical_datum'])}" if meta.get("vertical_datum") else ", ellipsoidal heights")
-        + f". Flight: {_esc(meta.get('flown_at') or 'date not given')}. Processing run "
+        + f". Flight: {_esc(format_flight_time(meta.get('flown_at'), meta.get('flown_at_source')))}. Processing run "
         f"{_esc(meta.get('run_number', '?'))}, report made {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC.",
         styles["BodyText"]))
 
@@ -175,12 +177,14 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
     if vols:
         sections.append("volumes")
         pv = prev.get("volumes") or {}
-        rows = [["stockpile", "base", "volume (m3)", "previous (m3)", "change (m3)"]]
+        rows = [["stockpile", "material", "base", "volume (m3)", "previous (m3)", "change (m3)"]]
         for v in vols:
-            before = pv.get(v["name"])
-            rows.append([v["name"], v.get("base", ""), _fmt(v.get("volume_m3"), 2), _fmt(before, 2),
-                         _fmt(v["volume_m3"] - before, 2) if (before is not None and v.get("volume_m3") is not None)
-                         else "-"])
+            # one rule for every volume (display.py, as in the browser): decimals from the uncertainty
+            before, sigma = pv.get(v["name"]), v.get("sigma_m3")
+            rows.append([v["name"], material_label(v.get("material")), v.get("base", ""),
+                         format_volume_pm(v.get("volume_m3"), sigma), format_volume(before, sigma),
+                         format_volume(v["volume_m3"] - before, sigma)
+                         if (before is not None and v.get("volume_m3") is not None) else "-"])
         table(rows)
     else:
         p("No volumes in this run (no stockpile defined, or the surface step did not run).")

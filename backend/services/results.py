@@ -20,23 +20,29 @@ from sqlalchemy import select
 from ..core.problems import Conflict, NotFound, Unprocessable
 from ..models import Run, RunOutput, Site, Survey, VolumeMeasurement
 from ..storage import blob_key
-from . import result_files
+from . import result_files, steps_catalog
 from .context import Ctx
+from .display import iso_time
 from .permissions import require_run, require_run_with_outputs, require_survey
 
+def _declared(step: str, key: str) -> tuple[str, ...]:
+    return (steps_catalog.BY_NAME[step].output(key).path,)
+
+
+# the files each result endpoint serves: the outputs the steps declare (georef_core.steps.specs), by name
 PATHS = {
-    "trajectory": ("ppk/trajectory.pos",),
-    "camera_positions": ("ppk/events.csv", "ppk/trajectory_events.csv"),
-    "gnss_summary": ("ppk/summary.json", "ppk/trajectory_summary.json"),
-    "residuals_json": ("residuals.json",),
-    "residuals_csv": ("residuals.csv",),
-    "lever_arm": ("lever_arm_delay.json",),
-    "dsm": ("dense/dsm.tif",),
-    "dense_summary": ("dense/dense_summary.json",),
-    "ortho": ("dense/ortho.tif",),
-    "point_cloud": ("dense/points.laz", "dense/points.las"),
-    "report": ("report/accuracy_report.pdf",),
-    "volumes": ("volumes/volumes.json",),
+    "trajectory": _declared("gnss", "trajectory"),
+    "camera_positions": _declared("gnss", "camera_positions"),
+    "gnss_summary": _declared("gnss", "summary"),
+    "residuals_json": _declared("georef", "residuals_json"),
+    "residuals_csv": _declared("georef", "residuals_csv"),
+    "lever_arm": _declared("georef", "lever_arm"),
+    "dsm": _declared("dense", "dsm"),
+    "dense_summary": _declared("dense", "summary"),
+    "ortho": _declared("dense", "ortho"),
+    "point_cloud": _declared("dense", "point_cloud"),
+    "report": _declared("report", "report"),
+    "volumes": _declared("volumes", "volumes"),
 }
 MEDIA = {".json": "application/json", ".csv": "text/csv; charset=utf-8", ".pos": "text/plain; charset=utf-8",
          ".tif": "image/tiff; application=geotiff; profile=cloud-optimized", ".laz": "application/vnd.laszip",
@@ -361,7 +367,7 @@ def volumes(ctx: Ctx, run_id: str, fmt: str) -> Rendered:
              "sigma_m3": (r.details or {}).get("sigma_m3"), "ci95_m3": (r.details or {}).get("ci95_m3"),
              "cut_m3": r.cut_m3, "fill_m3": r.fill_m3, "area_m2": r.area_m2,
              "base_elevation_m": (r.details or {}).get("base_elevation_m"),
-             "measured_at": r.measured_at.isoformat() if r.measured_at else None} for r in rows]
+             "measured_at": iso_time(r.measured_at)} for r in rows]
     body_key = json.dumps(data, sort_keys=True, default=str).encode()
     import hashlib
 
@@ -471,11 +477,14 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
 
     from .stockpiles import validate_base, validate_outline
 
+    outline, base = validate_outline(outline), validate_base(base)     # bounded (vertices), before any query
     run, rows = require_run_with_outputs(ctx, run_id, PATHS["dsm"] + PATHS["dense_summary"], "viewer")
-    outline, base = validate_outline(outline), validate_base(base)
     o = _pick_output(run, "dsm", rows, True)
     summary = _pick_output(run, "dense_summary", rows, False)
-    site = ctx.db.get(Site, run.site_id)
+    site_crs = ctx.db.get(Site, run.site_id).crs
+    # everything needed is read: end the transaction before the computation (nothing was written; on
+    # SQLite an open write transaction would block every other writer while the volume is computed)
+    ctx.db.commit()
     try:
         from georef_core.errors import GeorefError
         from georef_core.steps.volumes import run_volumes
@@ -496,7 +505,7 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
             ctx.storage.fetch(blob_key(summary.sha256), Path(tmp) / "dense_summary.json")
         poly = Path(tmp) / "outline.geojson"
         poly.write_text(json.dumps({"type": "FeatureCollection",
-                                    "crs": {"type": "name", "properties": {"name": site.crs}},
+                                    "crs": {"type": "name", "properties": {"name": site_crs}},
                                     "features": [{"type": "Feature", "properties": {"name": "outline"},
                                                   "geometry": outline}]}))
         try:
@@ -508,4 +517,4 @@ def adhoc_volume(ctx: Ctx, run_id: str, outline: dict, base: str) -> dict:
     if isinstance(r.get("polygon"), dict):
         r["polygon"] = {k: v for k, v in r["polygon"].items() if k != "source"}
     r["volume_m3"] = r.get("net_m3")
-    return {"run_id": run_id, "base": base, "crs": site.crs, **r}
+    return {"run_id": run_id, "base": base, "crs": site_crs, **r}

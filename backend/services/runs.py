@@ -125,9 +125,14 @@ def rerun(ctx: Ctx, run_id: str, from_step: str, settings: dict | None) -> Run:
     return create_run(ctx, parent.survey_id, steps, settings, trigger="rerun", parent=parent, from_step=from_step)
 
 
-def list_logs(ctx: Ctx, run_id: str, after_id: int, limit: int, step: str | None = None) -> list[RunLog]:
+def list_logs(ctx: Ctx, run_id: str, after_id: int, limit: int, offset: int = 0, step: str | None = None) -> Page:
+    """A page of the run's log in order (the list endpoints' pagination); ``after_id`` keeps only the lines
+    after that one (what a client that has the earlier lines asks for)."""
     require_run(ctx, run_id, "viewer")
-    return logs_after(ctx.db, run_id, after_id, limit, step)
+    stmt = select(RunLog).where(RunLog.run_id == run_id, RunLog.id > after_id)
+    if step:
+        stmt = stmt.where(RunLog.step_name == step)
+    return paginate(ctx, stmt.order_by(RunLog.id), limit, offset)
 
 
 def logs_after(db, run_id: str, after_id: int, limit: int = 500, step: str | None = None) -> list[RunLog]:

@@ -1,42 +1,51 @@
-"""The processing steps as data: order, dependencies, which survey files and settings each reads, and
-which queue it belongs on. The worker's registry (worker/pipeline.py) binds each name to its function;
-the backend plans runs from this catalogue without importing any science code."""
+"""The processing steps as data, read from their specs (georef_core.steps.contract: options, inputs,
+outputs, version, dependencies, queue), plus the platform's own report step declared here the same way.
+The backend plans runs, validates settings and names result files from these specs without importing any
+science code; the worker's registry (worker/pipeline.py) runs the function each spec declares."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from georef_core.steps.contract import Option, Output, Product, StepSpec, all_specs, get_spec, register
 
-
-@dataclass(frozen=True)
-class StepInfo:
-    name: str
-    depends_on: tuple[str, ...]
-    inputs: tuple[str, ...]      # survey-folder prefixes this step reads ("" = everything)
-    settings: tuple[str, ...]    # settings sections that change its result
-    heavy: bool                  # goes to the heavy queue when one is configured
-    site_data: tuple[str, ...] = ()   # site-level data it reads (crs, stockpiles)
-    version: int = 1             # bump when a step's code changes its outputs (invalidates reuse)
-
-
-STEPS: tuple[StepInfo, ...] = (
-    # DJI flight folders (flights/<name>/: photos, Timestamp.MRK, raw log) are read whole by both: the MRK
-    # exposures are tied to the photos of their folder
-    StepInfo("gnss", (), ("rover/", "base/", "nav/", "flights/", "events.csv", "survey.json"), ("gnss",), False,
-             ("crs",)),
-    # georef reads the PPK of the gnss step, and recomputes it from the observations when the images are
-    # tied to their EXIF times (setting exif_time_offset_s): on a worker of its own (the heavy queue, its own
-    # disk) it needs them in its survey folder as well
-    StepInfo("georef", ("gnss",), ("rover/", "base/", "nav/", "flights/", "images/", "gcp/", "events.csv",
-                                   "survey.json"),
-             ("georef",), True, ("crs", "vertical")),
-    StepInfo("dense", ("georef",), (), ("dense",), True, ("crs",)),
-    StepInfo("volumes", ("dense",), (), ("volumes",), False, ("crs", "stockpiles")),
-    StepInfo("report", ("gnss",), ("gcp/",), ("report",), False, ("crs", "stockpiles", "names")),
+REPORT = StepSpec(
+    name="report", title="Accuracy report", version=1,
+    description="PDF: check-point table, PPK quality, lever arm, volumes (the platform's step).",
+    function=None, depends_on=("gnss",), soft_after=("georef", "dense", "volumes"), inputs=("gcp/",),
+    site_data=("crs", "stockpiles", "names"),
+    options=(Option("title", "string", None, "a title for the report's cover", advanced=True),),
+    outputs=(Output("report", "report/accuracy_report.pdf", "the accuracy report", "application/pdf"),),
+    products=(Product("report.pdf", "Accuracy report", "PDF: check-point table, PPK quality, lever arm, volumes",
+                      ("report",), (("", "PDF"),)),),
+    summary={"sections": "the report's sections"},
 )
+
+
+def _ensure_report() -> None:
+    names = [s.name for s in all_specs()]
+    if "report" not in names:
+        register(REPORT)
+
+
+def _ordered() -> tuple[StepSpec, ...]:
+    """The registered steps in registration order, the platform's report last (it reads the others)."""
+    _ensure_report()
+    return tuple(s for s in all_specs() if s.name != "report") + (get_spec("report"),)
+
+
+STEPS: tuple[StepSpec, ...] = _ordered()
 BY_NAME = {s.name: s for s in STEPS}
 ORDER = [s.name for s in STEPS]
 # the report is drawn from whatever earlier steps produced: it waits for them without needing them
-SOFT_AFTER = {"report": ("georef", "dense", "volumes")}
+SOFT_AFTER = {s.name: s.soft_after for s in STEPS if s.soft_after}
+
+
+def refresh() -> None:
+    """Re-reads the registry (after a step was registered, e.g. a plug-in or a test's toy step)."""
+    global STEPS, BY_NAME, ORDER, SOFT_AFTER
+    STEPS = _ordered()
+    BY_NAME = {s.name: s for s in STEPS}
+    ORDER = [s.name for s in STEPS]
+    SOFT_AFTER = {s.name: s.soft_after for s in STEPS if s.soft_after}
 
 
 def plan(requested: list[str] | None) -> list[str]:
@@ -56,3 +65,32 @@ def plan(requested: list[str] | None) -> list[str]:
 
 def queue_for(step: str, default_queue: str, heavy_queue: str) -> str:
     return heavy_queue if (heavy_queue and BY_NAME[step].heavy) else default_queue
+
+
+def validate_settings(settings: dict | None) -> dict:
+    """Run or survey settings ({step: {option: value}}) checked against the steps' specs; returns them
+    normalised. Raises OptionError (a ProcessingError) naming the step and the bad option."""
+    from georef_core.steps.contract import OptionError
+
+    out = {}
+    for section, values in (settings or {}).items():
+        if section not in BY_NAME:
+            raise OptionError(section, "(section)", f"unknown settings section; sections are {', '.join(ORDER)}")
+        out[section] = get_spec(section).validate(values)
+    return out
+
+
+def result_paths() -> dict[str, tuple[str, ...]]:
+    """Every declared output, by '<step>.<key>' and by the plain key where it is unique: its path in the run
+    folder."""
+    paths: dict[str, tuple[str, ...]] = {}
+    seen: dict[str, int] = {}
+    for spec in STEPS:
+        for o in spec.outputs:
+            paths[f"{spec.name}.{o.key}"] = (o.path,)
+            seen[o.key] = seen.get(o.key, 0) + 1
+    for spec in STEPS:
+        for o in spec.outputs:
+            if seen[o.key] == 1:
+                paths[o.key] = (o.path,)
+    return paths

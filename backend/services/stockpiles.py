@@ -3,6 +3,7 @@ volume history over the runs of the site's surveys."""
 
 from __future__ import annotations
 
+import math
 import re
 
 from sqlalchemy import select
@@ -16,11 +17,29 @@ from .sites import check_if_match
 _BASES = re.compile(r"^(lowest|highest|mean|plane|tin|elevation:-?\d+(\.\d+)?)$")
 
 
+MAX_OUTLINE_VERTICES = 10_000     # a surveyed stockpile toe has tens to hundreds; the work is bounded by this
+MAX_OUTLINE_RINGS = 100
+
+
 def validate_outline(outline: dict) -> dict:
     from shapely.geometry import shape
 
     if not isinstance(outline, dict) or outline.get("type") != "Polygon":
         raise Unprocessable("outline: a GeoJSON Polygon (coordinates in the site CRS, metres) expected")
+    rings = outline.get("coordinates")
+    if not isinstance(rings, list) or not rings or not all(isinstance(r, list) for r in rings):
+        raise Unprocessable("outline: coordinates must be a list of rings (lists of [x, y] positions)")
+    if len(rings) > MAX_OUTLINE_RINGS:
+        raise Unprocessable(f"outline: {len(rings)} rings; at most {MAX_OUTLINE_RINGS} (the outer ring and its "
+                            "holes) are accepted", slug="too-many-vertices")
+    n = sum(len(r) for r in rings)
+    if n > MAX_OUTLINE_VERTICES:
+        raise Unprocessable(f"outline: {n} vertices; at most {MAX_OUTLINE_VERTICES} are accepted: simplify the "
+                            "outline (a stockpile toe needs far fewer)", slug="too-many-vertices")
+    if not all(isinstance(pt, list) and 2 <= len(pt) <= 3 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in pt)
+            for r in rings for pt in r):
+        raise Unprocessable("outline: every position must be [x, y] or [x, y, z] finite numbers")
     try:
         geom = shape(outline)
     except Exception as exc:   # shapely raises several types on malformed coordinates

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 
 from ..core.problems import Conflict, NotFound, Unprocessable
-from ..models import Survey, SurveyFile
+from ..models import Survey, SurveyFile, VolumeMeasurement
 from ..storage import blob_key
 from . import file_kinds
 from .context import Ctx
@@ -15,24 +15,25 @@ from .pagination import Page, paginate
 from .permissions import require_site, require_survey
 from .sites import check_if_match
 
-SETTINGS_SECTIONS = ("gnss", "georef", "dense", "volumes", "report")
-
-
 def validate_settings(settings: dict | None) -> dict:
-    settings = dict(settings or {})
-    bad = [k for k in settings if k not in SETTINGS_SECTIONS]
-    if bad:
-        raise Unprocessable(f"settings: unknown section(s) {', '.join(bad)}; sections are {', '.join(SETTINGS_SECTIONS)}")
-    for k, v in settings.items():
-        if not isinstance(v, dict):
-            raise Unprocessable(f"settings.{k}: an object of options expected")
-    return settings
+    """Settings ({step: {option: value}}) checked against the steps' specs (steps_catalog.validate_settings):
+    an unknown section or option, a wrong type, range or choice is a 422 naming it, before anything runs."""
+    from georef_core.errors import ProcessingError
+
+    from .steps_catalog import validate_settings as check
+
+    if settings is not None and not isinstance(settings, dict):
+        raise Unprocessable("settings: an object of sections expected")
+    try:
+        return check(dict(settings or {}))
+    except ProcessingError as exc:
+        raise Unprocessable(str(exc)) from None
 
 
 def create_survey(ctx: Ctx, site_id: str, name: str, flown_at: datetime | None, notes: str, settings: dict | None) -> Survey:
     require_site(ctx, site_id, "editor")
-    s = Survey(site_id=site_id, name=name, flown_at=flown_at, notes=notes, settings=validate_settings(settings),
-               created_by=ctx.user.id)
+    s = Survey(site_id=site_id, name=name, flown_at=flown_at, flown_at_source="user" if flown_at else None,
+               notes=notes, settings=validate_settings(settings), created_by=ctx.user.id)
     ctx.db.add(s)
     ctx.db.flush()
     return s
@@ -61,6 +62,10 @@ def update_survey(ctx: Ctx, survey_id: str, changes: dict, if_match: str | None 
     check_if_match(s, if_match)
     if "settings" in changes:
         changes["settings"] = validate_settings(changes["settings"])
+    if "flown_at" in changes:
+        # a date given is kept; null hands the date back to the data (the next run reads it)
+        when = changes.pop("flown_at")
+        set_flown_at(ctx.db, s, when, "user" if when else None, bump=False)
     for k, v in changes.items():
         if k == "name" and v is None:
             continue
@@ -68,6 +73,16 @@ def update_survey(ctx: Ctx, survey_id: str, changes: dict, if_match: str | None 
     s.version += 1
     ctx.db.flush()
     return s
+
+
+def set_flown_at(db, survey: Survey, when: datetime | None, source: str | None, bump: bool = True) -> None:
+    """The survey's flight time and where it comes from ('user', or the data: 'gnss', 'dji-mrk', 'exif');
+    its volume measurements are dated by it (VolumeMeasurement.measured_at), so they follow it."""
+    survey.flown_at, survey.flown_at_source = when, source
+    if bump:
+        survey.version += 1
+    if when is not None:
+        db.execute(update(VolumeMeasurement).where(VolumeMeasurement.survey_id == survey.id).values(measured_at=when))
 
 
 def delete_survey(ctx: Ctx, survey_id: str, if_match: str | None = None) -> None:

@@ -1,6 +1,6 @@
 import { describe, expect, it } from "vitest";
 import { area, outlinesFromGeoJson, perimeter, pointInRing, ringToGeoJson, selfIntersects, signedArea } from "../src/lib/geom";
-import { type Grid, difference, fitPlane, hillshade, quantiles, rampColour, RAMPS, renderHeights, sampleBilinear, volumeUnderOutline } from "../src/lib/raster";
+import { type Grid, difference, hillshade, quantiles, rampColour, RAMPS, renderHeights, sampleBilinear } from "../src/lib/raster";
 
 /** A grid of `size` metres with 0.1 m cells, heights from f(x, y) at cell centres. */
 function grid(f: (x: number, y: number) => number, size = 20, res = 0.1, x0 = 1000, y0 = 5000): Grid {
@@ -11,45 +11,6 @@ function grid(f: (x: number, y: number) => number, size = 20, res = 0.1, x0 = 10
 }
 
 const square = (x: number, y: number, s: number): [number, number][] => [[x, y], [x + s, y], [x + s, y + s], [x, y + s]];
-
-describe("volumes under an outline (browser estimate)", () => {
-  it("measures a cone on a flat base within 1 %", () => {
-    const R = 6, H = 3, cx = 1010, cy = 5010, z0 = 100;
-    const g = grid((x, y) => z0 + Math.max(0, H * (1 - Math.hypot(x - cx, y - cy) / R)));
-    const v = volumeUnderOutline(g, square(1002, 5002, 16), "lowest", 0.02);
-    const truth = (Math.PI * R * R * H) / 3;
-    expect(Math.abs(v.cut_m3 - truth) / truth).toBeLessThan(0.01);
-    expect(v.fill_m3).toBeCloseTo(0, 6);
-    expect(v.baseHeight_m).toBeCloseTo(z0, 4);
-    expect(v.area_m2).toBeCloseTo(256, 6);
-    expect(v.sigma_m3).toBeCloseTo(256 * 0.02, 3); // flat outline: only the survey's vertical error
-  });
-
-  it("measures a box on an inclined ground with a plane base, and cut/fill against an elevation", () => {
-    const slope = (x: number, y: number) => 50 + 0.1 * (x - 1000) + 0.05 * (y - 5000);
-    const g = grid((x, y) => slope(x, y) + (x > 1006 && x < 1014 && y > 5006 && y < 5014 ? 2 : 0));
-    const v = volumeUnderOutline(g, square(1003, 5003, 14), "plane");
-    expect(v.cut_m3).toBeCloseTo(64 * 2, 0);
-    const flat = grid(() => 10);
-    const e = volumeUnderOutline(flat, square(1002, 5002, 10), { elevation: 10.5 });
-    expect(e.fill_m3).toBeCloseTo(50, 6);
-    expect(e.net_m3).toBeCloseTo(-50, 6);
-  });
-
-  it("counts cells without data instead of treating them as zero", () => {
-    const g = grid(() => 1);
-    for (let i = 0; i < 100; i++) g.data[10050 + i] = NaN;
-    const v = volumeUnderOutline(g, square(1000.05, 5000.05, 19.9), { elevation: 0 });
-    expect(v.missingCells).toBe(100);
-  });
-
-  it("fits a plane exactly through planar samples", () => {
-    const s = [0, 1, 2, 3, 4].flatMap((i) => [0, 1, 2].map((j) => ({ x: i, y: j, z: 3 + 0.5 * i - 0.25 * j })));
-    const p = fitPlane(s);
-    expect(p.rms).toBeLessThan(1e-9);
-    expect(p.at(10, 10)).toBeCloseTo(3 + 5 - 2.5, 9);
-  });
-});
 
 describe("map rendering", () => {
   it("shades slopes facing the sun brighter than those facing away", () => {

@@ -11,9 +11,11 @@ from ..errors import GeorefError
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="georef", description="Directly georeferenced drone surveys.")
     sub = parser.add_subparsers(dest="command", required=True)
-    from . import dense_command, demo_command, georef_command, gnss_commands, simulate_command, volume_command
+    from . import (dense_command, demo_command, georef_command, gnss_commands, simulate_command, steps_command,
+                   volume_command)
 
-    for command in (gnss_commands, simulate_command, georef_command, dense_command, volume_command, demo_command):
+    for command in (gnss_commands, simulate_command, georef_command, dense_command, volume_command, demo_command,
+                    steps_command):
         command.register(sub)
     from .. import warmup
 

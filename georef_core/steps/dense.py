@@ -424,3 +424,8 @@ def _options_dict(opts: DenseOptions) -> dict:
     for k, v in opts.__dict__.items():
         d[k] = asdict(v) if hasattr(v, "__dataclass_fields__") else v
     return d
+
+
+def step_entry(workspace, options: dict, progress, context: dict) -> dict:
+    """The dense step as the contract runs it (specs.DENSE)."""
+    return run_dense(workspace.out_dir, dict(options or {}) or None, progress)

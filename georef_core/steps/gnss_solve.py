@@ -47,6 +47,10 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
         "timings_s": {k: round(v, 3) for k, v in sol.timings_s.items()},
         "warnings": sol.warnings,
     }
+    # when the drone flew (GPS seconds): its camera triggers, else the solution (the survey's flight time)
+    from .flight_time import gnss_time_span
+
+    summary["time_span"] = gnss_time_span(sol.time_s, events)
     if len(events):
         ev = interpolate_at_events(sol, events)
         events_out = Path(events_out) if events_out else out_pos.with_name(out_pos.stem + "_events.csv")
@@ -111,8 +115,13 @@ def read_survey_json(survey_dir) -> dict:
     return doc
 
 
-_SURVEY_GNSS_OPTIONS = {"freq", "mode", "direction", "filter", "elmask", "ar", "ratio", "navsys", "tdcp_slips",
-                        "hold_variance", "base_position_ecef_m", "known_start_ecef_m", "epsg", "events_csv"}
+def step_entry(workspace, options: dict, progress, context: dict) -> dict:
+    """The gnss step as the contract runs it (specs.GNSS): coordinates also in the site's CRS."""
+    options = dict(options or {})
+    crs = str(context.get("crs") or "")
+    if options.get("epsg") is None and crs.upper().startswith("EPSG:"):
+        options["epsg"] = int(crs.split(":")[1])
+    return run_survey_gnss(workspace.survey_dir, workspace.out_dir, options, progress)
 
 
 def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=None, found=None) -> dict:
@@ -127,10 +136,9 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
     survey_dir = Path(survey_dir)
     out = Path(out_dir) / "ppk"
-    opt = dict(options or {})
-    unknown = sorted(set(opt) - _SURVEY_GNSS_OPTIONS)
-    if unknown:
-        raise ProcessingError(f"unknown GNSS settings: {', '.join(unknown)} (known: {', '.join(sorted(_SURVEY_GNSS_OPTIONS))})")
+    from .contract import get_spec
+
+    opt = {k: v for k, v in get_spec("gnss").validate(dict(options or {})).items() if v is not None}
     meta = read_survey_json(survey_dir)
     from .survey_inputs import survey_inputs
 
@@ -182,8 +190,6 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
             except (TypeError, ValueError):
                 raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
     if opt.get("reverse_witness") is not None:
-        if not isinstance(opt["reverse_witness"], bool):
-            raise ProcessingError(f"GNSS settings: reverse_witness {opt['reverse_witness']!r} is not true or false")
         kw["reverse_witness"] = opt["reverse_witness"]
     if opt.get("navsys"):
         kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())

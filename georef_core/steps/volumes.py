@@ -8,7 +8,7 @@ import json
 import math
 from pathlib import Path
 
-from ..errors import ProcessingError
+from ..errors import InputFileError, ProcessingError
 from ..progress import ProgressFn, no_progress
 from ..volumes.base_surfaces import BaseSpec
 from ..volumes.change import compute_change
@@ -99,3 +99,62 @@ def run_change(before_path, after_path, out_dir=None, polygons_path=None, stable
         _write_json(Path(out_dir) / "change.json", doc)
         doc["output"] = str(Path(out_dir) / "change.json")
     return doc
+
+
+def stockpile_record(stockpile: dict, base: str, result: dict) -> dict:
+    """One stockpile's entry of volumes/volumes.json (the shape specs.VOLUMES declares and the platform stores):
+    net volume (cut - fill: the material above the base), cut, fill, area, and the details of run_volumes'
+    result (scalars, its uncertainty's sigma and 95 % interval, the base elevation, its warnings)."""
+    unc = result.get("uncertainty") or {}
+    base_info = result.get("base") or {}
+    details = {k: v for k, v in result.items() if isinstance(v, (int, float, str, bool))}
+    details.update({k: unc[k] for k in ("sigma_m3", "ci95_m3") if isinstance(unc.get(k), (int, float))})
+    if isinstance(base_info.get("elevation_m"), (int, float)):
+        details["base_elevation_m"] = base_info["elevation_m"]
+    if result.get("warnings"):
+        details["warnings"] = "; ".join(str(w) for w in result["warnings"])[:2000]
+    return {"stockpile_id": stockpile["id"], "stockpile_name": stockpile["name"], "base": base,
+            "volume_m3": result["net_m3"], "fill_m3": result["fill_m3"], "cut_m3": result["cut_m3"],
+            "area_m2": result["area_m2"], "details": details}
+
+
+def step_entry(workspace, options: dict, progress, context: dict) -> dict:
+    """The volumes step as the contract runs it (specs.VOLUMES): every stockpile of the site (context
+    "stockpiles": id, name, base, outline GeoJSON geometry in the site CRS, context "crs"), grouped by base,
+    on the dense step's DSM; writes volumes/volumes.json {"crs", "units", "stockpiles": [stockpile_record]}."""
+    from .contract import get_spec
+
+    piles = list(context.get("stockpiles") or [])
+    crs = context.get("crs")
+    vol_path = workspace.path("volumes", "volumes")
+    vol_dir = vol_path.parent
+    vol_dir.mkdir(parents=True, exist_ok=True)
+    opts = get_spec("volumes").validate(dict(options or {}))
+    noise = {k: opts.pop(k) for k in ("dsm_sigma_m", "height_bias_m", "correlation_length_m") if k in opts}
+    records: list[dict] = []
+    if piles:
+        dsm = workspace.path("dense", "dsm")
+        if not dsm.exists():
+            raise InputFileError(dsm, "no DSM: the dense step did not write dense/dsm.tif")
+        groups: dict[str, list[dict]] = {}
+        for p in piles:
+            groups.setdefault(p["base"], []).append(p)
+        for n, (base, group) in enumerate(sorted(groups.items())):
+            if progress:
+                progress(f"volumes: base {base}", n, len(groups))
+            fc = {"type": "FeatureCollection", "crs": {"type": "name", "properties": {"name": crs}},
+                  "features": [{"type": "Feature", "properties": {"name": p["name"], "id": p["id"]},
+                                "geometry": p["outline"]} for p in group]}
+            slug = base.replace(":", "_").replace(".", "p")
+            poly = vol_dir / f"stockpiles_{slug}.geojson"
+            poly.write_text(json.dumps(fc))
+            doc = run_volumes(dsm, poly, vol_dir / f"volumes_{slug}.json", base=base,
+                              options={k: v for k, v in opts.items() if v is not None} or None,
+                              **{k: v for k, v in noise.items() if v is not None})
+            by_name = {r.get("name"): r for r in doc["results"]}
+            for k, p in enumerate(group):     # results are named after the features (in their order)
+                r = by_name.get(p["name"], doc["results"][k] if k < len(doc["results"]) else None)
+                if r is not None:
+                    records.append(stockpile_record(p, base, r))
+    vol_path.write_text(json.dumps({"crs": crs, "units": "m3", "stockpiles": records}, indent=2))
+    return {"stockpiles": len(records)}

@@ -91,7 +91,7 @@ UNSCOPED = {
     ("DELETE", "/api/v1/tokens/{token_id}"), ("GET", "/api/v1/users"), ("POST", "/api/v1/users"),
     ("PATCH", "/api/v1/users/{user_id}"),
     ("GET", "/api/v1/sites"), ("POST", "/api/v1/sites"), ("GET", "/api/v1/webhooks"), ("POST", "/api/v1/webhooks"),
-    ("GET", "/api/v1/health"),
+    ("GET", "/api/v1/health"), ("GET", "/api/v1/steps"), ("GET", "/api/v1/steps/{name}"),
 }
 PUBLIC = {("POST", "/api/v1/auth/login"), ("GET", "/api/v1/health")}
 NOT_FOUND_WORD = {"site": "site", "survey": "survey", "run": "run", "upload": "upload", "stockpile": "stockpile",

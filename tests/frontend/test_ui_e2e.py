@@ -184,6 +184,8 @@ def test_site_manager_flow(page, small_site, ui_platform, tmp_path):
     page.get_by_role("link", name="Volumes").click()
     page.wait_for_function("() => (document.querySelector('[data-testid=map]')?.dataset.rasters || '').includes('overview')",
                            timeout=30000)
+    volume_posts = []
+    page.on("request", lambda r: volume_posts.append(r) if r.method == "POST" and r.url.endswith("/volumes") else None)
     page.get_by_role("button", name="Draw an outline").click()
     # 12 corners around the pile, 0.6 m outside its toe; the base: a plane through the outline (sloping ground)
     cx = sum(c[0] for c in ring) / len(ring)
@@ -215,6 +217,17 @@ def test_site_manager_flow(page, small_site, ui_platform, tmp_path):
                     "geometry": {"type": "Polygon", "coordinates": [[*map(list, corners), list(corners[0])]]}}]}))
     core = run_volumes(dsm, poly, base="plane", polygon_crs=e2e_platform.DEMO_CRS)["results"][0]
     assert net == pytest.approx(core["net_m3"], rel=0.05, abs=0.3), (net, core["net_m3"])
+    # the figure shown is the server's (POST /runs/{id}/volumes: the volumes step's computation, what the
+    # saved stockpile gets), not a second estimate made in the browser
+    asked = [r for r in volume_posts if r.url.endswith(f"/runs/{run_id}/volumes")]
+    assert asked, "the outline's volume was not asked of the server"
+    body = json.loads(asked[-1].post_data)
+    assert body["base"] == "plane"
+    csrf = next(c["value"] for c in page.context.cookies() if c["name"] == "georef_csrf")
+    server = page.request.post(f"/api/v1/runs/{run_id}/volumes", data=json.dumps(body),
+                               headers={"X-CSRF-Token": csrf, "Content-Type": "application/json"})
+    assert server.ok, server.text()
+    assert net == pytest.approx(server.json()["volume_m3"], abs=1e-9), (net, server.json()["volume_m3"])
     page.get_by_label("Name").fill("Pile A")
     shot(page, "volumes")
     page.get_by_role("button", name="Save stockpile").click()

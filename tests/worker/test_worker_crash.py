@@ -57,7 +57,7 @@ def test_killed_worker_mid_step(crash_platform, small_survey):
     assert final["state"] == "succeeded", final
     gnss = next(s for s in final["step_details"] if s["name"] == "gnss")
     assert gnss["attempt"] == 2 and gnss["worker"] != dead_worker and gnss["state"] == "succeeded"
-    logs = [x["message"] for x in api.get(f"/api/v1/runs/{run['id']}/logs").json()]
+    logs = [x["message"] for x in api.get(f"/api/v1/runs/{run['id']}/logs?limit=500").json()["items"]]
     assert any("no heartbeat" in m for m in logs), logs
 
     # no lost and no duplicated result

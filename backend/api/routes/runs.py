@@ -64,12 +64,11 @@ def rerun(run_id: str, body: RerunIn, ctx: CtxDep, request: Request):
                          headers={"Location": f"/api/v1/runs/{run.id}"})
 
 
-@router.get("/runs/{run_id}/logs", response_model=list[LogOut])
+@router.get("/runs/{run_id}/logs", response_model=PageOut[LogOut], summary="The run's log, oldest first (paginated)")
 def list_logs(run_id: str, ctx: CtxDep, request: Request, after_id: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
-              limit: Annotated[int, Query(ge=1, le=5000)] = 500,
+              limit: Annotated[int, Query(ge=1, le=500)] = 50, offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
               step: Annotated[str | None, Query(max_length=32)] = None):
-    return json_response(request, [LogOut.model_validate(x) for x in runs.list_logs(ctx, run_id, after_id, limit,
-                                                                                    step)])
+    return page_response(request, runs.list_logs(ctx, run_id, after_id, limit, offset, step), LogOut)
 
 
 @router.post("/runs/{run_id}/volumes", summary="Volume of an outline on the run's DSM (nothing saved; viewer)")

@@ -46,4 +46,4 @@ def delete_stockpile(stockpile_id: str, ctx: CtxDep, if_match: Annotated[str | N
 @router.get("/stockpiles/{stockpile_id}/volumes", response_model=list[VolumePointOut],
             summary="Volume of the stockpile in every run that measured it")
 def volume_history(stockpile_id: str, ctx: CtxDep, request: Request):
-    return json_response(request, stockpiles.volume_history(ctx, stockpile_id))
+    return json_response(request, [VolumePointOut.model_validate(v) for v in stockpiles.volume_history(ctx, stockpile_id)])

@@ -123,6 +123,23 @@ export const api = {
   },
 };
 
+/**
+ * Every item of a paginated list endpoint ({items, total, limit, offset}: the API's conventions), page by
+ * page (`pageSize` at most 500), up to `max` items.
+ */
+export async function getAllPages<T>(path: string, opts: { query?: RequestOptions["query"]; signal?: AbortSignal; pageSize?: number; max?: number } = {}): Promise<T[]> {
+  const limit = Math.max(1, Math.min(500, opts.pageSize ?? 500));
+  const max = opts.max ?? 100000;
+  const out: T[] = [];
+  for (let offset = 0; out.length < max; ) {
+    const page = await api.get<{ items: T[]; total: number; limit: number; offset: number }>(path, { query: { ...(opts.query ?? {}), limit, offset }, signal: opts.signal });
+    out.push(...page.items);
+    offset += page.items.length;
+    if (!page.items.length || offset >= page.total) break;
+  }
+  return out.slice(0, max);
+}
+
 /** Run async jobs over items with at most `limit` in flight. */
 export async function mapLimit<T, R>(items: T[], limit: number, f: (x: T, i: number) => Promise<R>): Promise<R[]> {
   const out: R[] = new Array(items.length);

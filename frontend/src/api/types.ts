@@ -56,6 +56,8 @@ export interface Survey {
   site_id: string;
   name: string;
   flown_at: string | null;
+  /** "user" (given), or read from the data by a run: "gnss", "dji-mrk", "exif"; null without a date */
+  flown_at_source?: string | null;
   notes: string;
   settings: Record<string, Record<string, unknown>>;
   created_at: string;
@@ -231,6 +233,22 @@ export interface TrajectoryEpoch {
   ratio: number | null;
 }
 
+/** The volume of an outline on a run's DSM, nothing saved (POST /runs/{id}/volumes): the volumes step's
+ * computation, so it is the figure a saved stockpile gets. */
+export interface OutlineVolume {
+  run_id: string;
+  /** the base surface as the volume computation describes it (method, elevation_m or z_ref_m, fit) */
+  base: string | Record<string, any>;
+  volume_m3: number;
+  net_m3: number;
+  cut_m3: number;
+  fill_m3: number;
+  area_m2: number;
+  uncertainty?: { sigma_m3?: number; ci95_m3?: number } | null;
+  warnings?: string[];
+  [k: string]: unknown;
+}
+
 export interface TrajectoryResponse {
   run_id: string;
   count: number;
@@ -244,6 +262,8 @@ export interface Stockpile {
   outline: { type: "Polygon"; coordinates: number[][][] };
   base: string;
   material: string;
+  /** the material as people read it ("crushed_stone" -> "Crushed stone"), from the server */
+  material_label?: string;
   density_t_m3: number | null;
   created_at: string;
   updated_at: string;

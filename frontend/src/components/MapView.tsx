@@ -57,7 +57,26 @@ interface Props {
   onSelectOutline?: (id: string) => void;
   readout?: (x: number, y: number) => string | null;
   legend?: ComponentChildren;
+  /** Shown over the map's top-left corner (drawing hints and buttons): never moves the map. */
+  overlay?: ComponentChildren;
   height?: number;
+}
+
+/** The view that shows all of `extent` in a `size` CSS-pixel map, with a 20 px margin. */
+export function fitView(extent: BBox, size: { w: number; h: number }): ViewState {
+  const res = Math.max((extent.maxX - extent.minX) / Math.max(1, size.w - 40), (extent.maxY - extent.minY) / Math.max(1, size.h - 40), 0.01);
+  return { cx: (extent.minX + extent.maxX) / 2, cy: (extent.minY + extent.maxY) / 2, res };
+}
+
+/**
+ * The view after the extent or the map's size changed: fitted to the extent until the user pans or zooms
+ * (a map opened before its orthophoto arrived, or measured before its tab was laid out, is not left
+ * showing a crop of it); once the user moved it, theirs.
+ */
+export function followView(view: ViewState | null, userMoved: boolean, extent: BBox | null, size: { w: number; h: number }): ViewState | null {
+  if (userMoved && view) return view;
+  if (!extent || !(size.w > 0) || !(size.h > 0)) return view;
+  return fitView(extent, size);
 }
 
 export function MapView(p: Props) {
@@ -67,6 +86,8 @@ export function MapView(p: Props) {
   const [view, setView] = useState<ViewState | null>(null);
   const [cursor, setCursor] = useState<Pt | null>(null);
   const drag = useRef<{ x: number; y: number; moved: boolean; view: ViewState } | null>(null);
+  // the user panned or zoomed: the view is theirs (else it follows the extent and the map's size)
+  const userMoved = useRef(false);
 
   // Track the element size.
   useLayoutEffect(() => {
@@ -79,13 +100,18 @@ export function MapView(p: Props) {
 
   const fit = () => {
     if (!p.extent) return;
-    const e = p.extent;
-    const res = Math.max((e.maxX - e.minX) / (size.w - 40), (e.maxY - e.minY) / (size.h - 40), 0.01);
-    setView({ cx: (e.minX + e.maxX) / 2, cy: (e.minY + e.maxY) / 2, res });
+    userMoved.current = false;
+    setView(fitView(p.extent, size));
   };
-  useEffect(() => {
-    if (!view && p.extent && size.w > 0) fit();
-  }, [p.extent, size.w]);
+  const extentKey = p.extent ? `${p.extent.minX},${p.extent.minY},${p.extent.maxX},${p.extent.maxY}` : "";
+  useLayoutEffect(() => {
+    const next = followView(view, userMoved.current, p.extent, size);
+    if (next !== view) setView(next);
+  }, [extentKey, size.w, size.h]);
+  const move = (next: ViewState) => {
+    userMoved.current = true;
+    setView(next);
+  };
 
   const v = view;
   const toScreen = (x: number, y: number): [number, number] => (v ? [(x - v.cx) / v.res + size.w / 2, size.h / 2 - (y - v.cy) / v.res] : [0, 0]);
@@ -125,7 +151,7 @@ export function MapView(p: Props) {
     if (!v) return;
     const [wx, wy] = toWorld(sx, sy);
     const res = Math.min(1000, Math.max(0.002, v.res * f));
-    setView({ res, cx: wx - (sx - size.w / 2) * res, cy: wy + (sy - size.h / 2) * res });
+    move({ res, cx: wx - (sx - size.w / 2) * res, cy: wy + (sy - size.h / 2) * res });
   };
 
   const local = (e: MouseEvent): [number, number] => {
@@ -145,7 +171,7 @@ export function MapView(p: Props) {
     const d = drag.current;
     if (!d) return;
     if (Math.hypot(x - d.x, y - d.y) > 4) d.moved = true;
-    if (d.moved) setView({ ...d.view, cx: d.view.cx - (x - d.x) * d.view.res, cy: d.view.cy + (y - d.y) * d.view.res });
+    if (d.moved) move({ ...d.view, cx: d.view.cx - (x - d.x) * d.view.res, cy: d.view.cy + (y - d.y) * d.view.res });
   };
   const onPointerUp = (e: PointerEvent) => {
     const d = drag.current;
@@ -165,10 +191,10 @@ export function MapView(p: Props) {
     const step = 60 * v.res;
     const k = e.key;
     let used = true;
-    if (k === "ArrowLeft") setView({ ...v, cx: v.cx - step });
-    else if (k === "ArrowRight") setView({ ...v, cx: v.cx + step });
-    else if (k === "ArrowUp") setView({ ...v, cy: v.cy + step });
-    else if (k === "ArrowDown") setView({ ...v, cy: v.cy - step });
+    if (k === "ArrowLeft") move({ ...v, cx: v.cx - step });
+    else if (k === "ArrowRight") move({ ...v, cx: v.cx + step });
+    else if (k === "ArrowUp") move({ ...v, cy: v.cy + step });
+    else if (k === "ArrowDown") move({ ...v, cy: v.cy - step });
     else if (k === "+" || k === "=") zoom(1 / 1.5);
     else if (k === "-" || k === "_") zoom(1.5);
     else if (k === "0") fit();
@@ -256,6 +282,7 @@ export function MapView(p: Props) {
           </svg>
         ) : null}
         {!p.extent ? <div class="map-empty">Nothing to show yet.</div> : null}
+        {p.overlay ? <div class="map-overlay-box" onPointerDown={(e) => e.stopPropagation()} onPointerUp={(e) => e.stopPropagation()} onDblClick={(e) => e.stopPropagation()}>{p.overlay}</div> : null}
       </div>
       {p.legend ? <div class="map-legend">{p.legend}</div> : null}
     </div>

@@ -40,12 +40,55 @@ export function formatDate(iso: string | null | undefined): string {
   return Number.isNaN(d.getTime()) ? iso : d.toISOString().slice(0, 10);
 }
 
-/** Volumes: m³ with thousands separators; small volumes keep one decimal. */
-export function formatVolume(m3: number | null | undefined): string {
+/**
+ * Volumes, one rule everywhere (the PDF report's too: backend/services/display.py, checked against the same
+ * cases in tests/fixtures/volume_format_cases.json): as many decimals as the uncertainty supports (its first
+ * two significant digits: 15.24 ± 0.13, 1,523 ± 12), at most 3; without an uncertainty, by magnitude
+ * (2 decimals below 100 m³, 1 below 10 000, then none). Thousands separated by commas.
+ */
+export function volumeDecimals(m3: number | null | undefined, sigma?: number | null): number {
+  if (typeof sigma === "number" && Number.isFinite(sigma) && sigma > 0) return Math.max(0, Math.min(3, 1 - Math.floor(Math.log10(sigma))));
+  const a = typeof m3 === "number" && Number.isFinite(m3) ? Math.abs(m3) : 0;
+  return a < 100 ? 2 : a < 10000 ? 1 : 0;
+}
+
+function fixedWithCommas(v: number, decimals: number): string {
+  return v.toLocaleString("en-GB", { minimumFractionDigits: decimals, maximumFractionDigits: decimals, useGrouping: true });
+}
+
+/** "15.24" (no unit), "–" without a value; `sigma` (1σ, m³) sets the decimals. */
+export function formatVolumeNumber(m3: number | null | undefined, sigma?: number | null): string {
   if (m3 === null || m3 === undefined || !Number.isFinite(m3)) return "–";
-  const a = Math.abs(m3);
-  const s = a >= 100 ? Math.round(m3).toLocaleString("en-GB") : m3.toFixed(a >= 10 ? 1 : 2);
-  return `${s} m³`;
+  return fixedWithCommas(m3, volumeDecimals(m3, sigma));
+}
+
+/** "15.24 m³"; `sigma` (1σ, m³) sets the decimals (it is not shown: formatVolumePm shows it). */
+export function formatVolume(m3: number | null | undefined, sigma?: number | null): string {
+  const s = formatVolumeNumber(m3, sigma);
+  return s === "–" ? s : `${s} m³`;
+}
+
+/** "15.24 ± 0.13 m³" (the uncertainty with the value's decimals), or the value alone. */
+export function formatVolumePm(m3: number | null | undefined, sigma?: number | null): string {
+  const s = formatVolumeNumber(m3, sigma);
+  if (s === "–" || typeof sigma !== "number" || !Number.isFinite(sigma) || !(sigma > 0)) return s === "–" ? s : `${s} m³`;
+  return `${s} ± ${fixedWithCommas(sigma, volumeDecimals(m3, sigma))} m³`;
+}
+
+const FLIGHT_SOURCE: Record<string, string> = {
+  gnss: "from the GNSS data",
+  "dji-mrk": "from the DJI MRK file",
+  exif: "from the photos' EXIF times",
+};
+
+/**
+ * When the survey was flown: the date given, or the one a run read from the data (GNSS solution, DJI MRK,
+ * EXIF), never the upload date. `text` for a table cell; `note` says where a date read from the data comes from.
+ */
+export function flightDate(s: { flown_at: string | null; flown_at_source?: string | null }): { text: string; note: string; known: boolean } {
+  if (!s.flown_at) return { text: "not known yet", note: "no date given; read from the data when the survey is processed", known: false };
+  const src = s.flown_at_source ? FLIGHT_SOURCE[s.flown_at_source] : undefined;
+  return { text: formatDate(s.flown_at), note: src ?? "", known: true };
 }
 
 export function formatArea(m2: number | null | undefined): string {

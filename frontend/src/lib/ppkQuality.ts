@@ -49,3 +49,23 @@ export function qualityShares(epochs: Epoch[]): { fix: number; float: number; ot
 }
 
 export const Q_NAME: Record<number, string> = { 1: "fix", 2: "float", 3: "SBAS", 4: "DGPS", 5: "single", 6: "PPP" };
+
+export interface QualityCounts {
+  epochs: number;
+  fix: number;
+  float: number;
+  other: number;
+}
+
+/**
+ * The solution's epoch counts as the GNSS step counted them (its summary: `epochs`, `fix`, `float`): the
+ * one source of these figures for the processing view, the accuracy view and the PDF report (the chart
+ * draws a decimated trajectory, whose length is not the number of epochs). Null without a summary.
+ */
+export function qualityFromSummary(summary: Record<string, any> | null | undefined): QualityCounts | null {
+  const n = summary?.epochs;
+  if (typeof n !== "number" || !(n > 0)) return null;
+  const fix = typeof summary?.fix === "number" ? summary.fix : 0;
+  const flt = typeof summary?.float === "number" ? summary.float : 0;
+  return { epochs: n, fix, float: flt, other: Math.max(0, n - fix - flt) };
+}

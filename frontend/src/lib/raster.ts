@@ -1,11 +1,10 @@
 /**
  * Rasters decoded in the browser (DSM heights, orthophoto bands) and what the map draws from them:
- * hillshade, colour ramps, the height difference of two surveys, and a quick volume under an outline.
+ * hillshade, colour ramps and the height difference of two surveys (volumes are the server's: POST
+ * /runs/{id}/volumes measures a drawn outline as the volumes step does).
  * A Grid is north-up: row 0 is the top (maximum northing), cell (r, c) has its centre at
  * x = originX + (c + 0.5) resX, y = originY - (r + 0.5) resY.
  */
-
-import { type Ring, area as ringArea, bboxOf, openRing, pointInRing } from "./geom";
 
 export interface Grid {
   width: number;
@@ -161,116 +160,4 @@ export function difference(later: Grid, earlier: Grid): Grid {
     }
   }
   return { ...later, data: out };
-}
-
-export type QuickBase = "lowest" | "highest" | "mean" | "plane" | { elevation: number };
-
-export interface QuickVolume {
-  cut_m3: number;
-  fill_m3: number;
-  net_m3: number;
-  area_m2: number;
-  /** One-sigma uncertainty of the net volume (see volumeUnderOutline). */
-  sigma_m3: number;
-  base: string;
-  baseHeight_m: number | null;
-  cells: number;
-  missingCells: number;
-}
-
-/** Heights along the outline, every half cell. */
-export function outlineHeights(g: Grid, ring: Ring): { x: number; y: number; z: number }[] {
-  const r = openRing(ring);
-  const step = Math.min(g.resX, g.resY) / 2;
-  const out: { x: number; y: number; z: number }[] = [];
-  for (let i = 0; i < r.length; i++) {
-    const [x0, y0] = r[i];
-    const [x1, y1] = r[(i + 1) % r.length];
-    const n = Math.max(1, Math.ceil(Math.hypot(x1 - x0, y1 - y0) / step));
-    for (let k = 0; k < n; k++) {
-      const x = x0 + ((x1 - x0) * k) / n, y = y0 + ((y1 - y0) * k) / n;
-      const z = sampleBilinear(g, x, y);
-      if (Number.isFinite(z)) out.push({ x, y, z });
-    }
-  }
-  return out;
-}
-
-/** Least-squares plane z = a + b (x - x0) + c (y - y0) through samples; returns a function and the RMS. */
-export function fitPlane(s: { x: number; y: number; z: number }[]): { at: (x: number, y: number) => number; rms: number } {
-  const n = s.length;
-  const x0 = s.reduce((a, p) => a + p.x, 0) / n, y0 = s.reduce((a, p) => a + p.y, 0) / n;
-  let sxx = 0, sxy = 0, syy = 0, sxz = 0, syz = 0, sz = 0;
-  for (const p of s) {
-    const dx = p.x - x0, dy = p.y - y0;
-    sxx += dx * dx; sxy += dx * dy; syy += dy * dy; sxz += dx * p.z; syz += dy * p.z; sz += p.z;
-  }
-  const det = sxx * syy - sxy * sxy;
-  const b = det ? (sxz * syy - syz * sxy) / det : 0;
-  const c = det ? (syz * sxx - sxz * sxy) / det : 0;
-  const a = sz / n;
-  const at = (x: number, y: number) => a + b * (x - x0) + c * (y - y0);
-  const rms = Math.sqrt(s.reduce((acc, p) => acc + (p.z - at(p.x, p.y)) ** 2, 0) / n);
-  return { at, rms };
-}
-
-/**
- * Volume between the surface and a base under a polygon, by cell centres inside the polygon (a quick
- * browser estimate while drawing; the server's volume step integrates exact cell coverage).
- * Uncertainty (1 sigma): the survey's vertical error as a bias over the whole area (A sigma_z), plus the
- * base's own uncertainty (spread of the outline heights about the base, over sqrt(n) samples, times A).
- */
-export function volumeUnderOutline(g: Grid, ring: Ring, base: QuickBase, sigmaZ_m = 0.03): QuickVolume {
-  const r = openRing(ring);
-  const bb = bboxOf(r)!;
-  const samples = outlineHeights(g, r);
-  let baseAt: (x: number, y: number) => number;
-  let baseH: number | null = null;
-  let baseSigma = 0;
-  let label: string;
-  if (typeof base === "object") {
-    baseH = base.elevation;
-    baseAt = () => base.elevation;
-    label = `elevation:${base.elevation}`;
-  } else {
-    if (samples.length < 3) throw new Error("the outline is outside the surface model");
-    const zs = samples.map((p) => p.z).sort((a, b) => a - b);
-    const spread = (h: number) => Math.sqrt(zs.reduce((a, z) => a + (z - h) ** 2, 0) / zs.length);
-    label = base;
-    if (base === "plane") {
-      const p = fitPlane(samples);
-      baseAt = p.at;
-      baseSigma = p.rms / Math.sqrt(samples.length);
-    } else {
-      const q = base === "lowest" ? 0.02 : base === "highest" ? 0.98 : -1;
-      baseH = q >= 0 ? zs[Math.round(q * (zs.length - 1))] : zs.reduce((a, z) => a + z, 0) / zs.length;
-      const h = baseH;
-      baseAt = () => h;
-      baseSigma = spread(h) / Math.sqrt(zs.length);
-    }
-  }
-  const cellA = g.resX * g.resY;
-  const c0 = Math.max(0, Math.floor((bb.minX - g.originX) / g.resX));
-  const c1 = Math.min(g.width - 1, Math.floor((bb.maxX - g.originX) / g.resX));
-  const r0 = Math.max(0, Math.floor((g.originY - bb.maxY) / g.resY));
-  const r1 = Math.min(g.height - 1, Math.floor((g.originY - bb.minY) / g.resY));
-  let cut = 0, fill = 0, cells = 0, missing = 0;
-  for (let rr = r0; rr <= r1; rr++) {
-    for (let cc = c0; cc <= c1; cc++) {
-      const [x, y] = cellCentre(g, rr, cc);
-      if (!pointInRing(x, y, r)) continue;
-      const z = g.data[rr * g.width + cc];
-      if (!Number.isFinite(z)) {
-        missing++;
-        continue;
-      }
-      cells++;
-      const d = z - baseAt(x, y);
-      if (d > 0) cut += d * cellA;
-      else fill -= d * cellA;
-    }
-  }
-  const A = ringArea(r);
-  const sigma = Math.hypot(A * sigmaZ_m, A * baseSigma);
-  return { cut_m3: cut, fill_m3: fill, net_m3: cut - fill, area_m2: A, sigma_m3: sigma, base: label, baseHeight_m: baseH, cells, missingCells: missing };
 }

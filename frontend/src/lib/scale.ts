@@ -44,3 +44,24 @@ export function decimalsFor(step: number): number {
   if (!(step > 0)) return 0;
   return Math.max(0, Math.min(6, -Math.floor(Math.log10(step) + 1e-9)));
 }
+
+/**
+ * Tick labels that do not overlap: ticks taken in the order given (the most important first), each kept
+ * only when it is at least `minPx` away from every tick already kept; returned in value order.
+ */
+export function spacedTicks(ticks: number[], toPx: (v: number) => number, minPx = 11): number[] {
+  const kept: number[] = [];
+  for (const t of ticks) if (kept.every((k) => Math.abs(toPx(k) - toPx(t)) >= minPx)) kept.push(t);
+  return kept.sort((a, b) => a - b);
+}
+
+/** A tick's label with the decimals that tell the ticks apart (0.2, 0.4 ... not 0, 0 ...). */
+export function tickLabel(v: number, ticks: number[]): string {
+  const sorted = [...ticks].sort((a, b) => a - b);
+  let step = Infinity;
+  for (let i = 1; i < sorted.length; i++) if (sorted[i] - sorted[i - 1] > 0) step = Math.min(step, sorted[i] - sorted[i - 1]);
+  const tol = (Number.isFinite(step) ? step : Math.abs(v) || 1) * 1e-6;
+  let dec = Number.isFinite(step) ? decimalsFor(step) : 0;
+  while (dec < 6 && sorted.some((t) => Math.abs(+t.toFixed(dec) - t) > tol)) dec++;   // 2.5-steps need one more
+  return v.toFixed(dec);
+}

@@ -8,6 +8,7 @@ import { api } from "../api/client";
 import { checkRows, residualRows } from "../api/summaries";
 import type { ApiPoint, LeverArm, ResidualsResponse, Run, RunDetail, TrajectoryResponse } from "../api/types";
 import { PpkChart } from "../components/PpkChart";
+import { qualityFromSummary } from "../lib/ppkQuality";
 import { ResidualMap } from "../components/ResidualMap";
 import { ResidualTable } from "../components/ResidualTable";
 import { ErrorBox, Figure, Loading, Note } from "../components/ui";
@@ -21,6 +22,10 @@ export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const points = useLoad((signal) => api.get<ApiPoint[]>(`/surveys/${ctx.survey.id}/points`, { signal }).catch(() => [] as ApiPoint[]), [ctx.survey.id]);
   const lever = useLoad((signal) => api.maybe<LeverArm>(`/runs/${run.id}/results/lever-arm`, { signal }), [run.id]);
   const traj = useLoad((signal) => api.maybe<TrajectoryResponse>(`/runs/${run.id}/results/trajectory`, { query: { format: "json", every: 2 }, signal }), [run.id]);
+  // the epoch counts are the GNSS step's (its summary), as in the processing view and the PDF: the chart's
+  // trajectory is every 2nd epoch
+  const detail = useLoad((signal) => api.maybe<RunDetail>(`/runs/${run.id}`, { signal }), [run.id]);
+  const gnssCounts = qualityFromSummary(detail.data?.step_details.find((s) => s.name === "gnss")?.summary);
   // the site's tolerance (set on the site, shared by everyone); a change here is remembered in this browser
   const siteTolerance: Tolerance = {
     horizontal_m: ctx.site.tolerance_horizontal_m ?? DEFAULT_TOLERANCE.horizontal_m,
@@ -97,7 +102,7 @@ export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
           <h2 id="ppk-title">GNSS trajectory</h2>
           <ErrorBox error={traj.error} />
           {traj.loading && !traj.data ? <Loading what="the trajectory" /> : null}
-          {traj.data ? <PpkChart epochs={traj.data.epochs} /> : !traj.loading ? <Note>No trajectory in this run.</Note> : null}
+          {traj.data ? <PpkChart epochs={traj.data.epochs} counts={gnssCounts} /> : !traj.loading ? <Note>No trajectory in this run.</Note> : null}
         </section>
         <section aria-labelledby="lever-title">
           <h2 id="lever-title">Lever arm and trigger delay</h2>

@@ -9,7 +9,7 @@ import { ErrorBox, Note } from "../components/ui";
 import { useLoad } from "../hooks";
 import { openCog, readGrid, canvasOf } from "../lib/cog";
 import { type BBox, type Ring, bboxOf, openRing } from "../lib/geom";
-import { formatDate, formatVolume } from "../lib/format";
+import { flightDate, formatVolume } from "../lib/format";
 import { type Grid, RAMPS, difference, quantiles, renderHeights } from "../lib/raster";
 import { autoRange, gridBBox, heightAt, useRunRaster } from "./rasterLayers";
 import type { SurveyContext } from "./SurveyView";
@@ -110,7 +110,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
         <label>Change since{" "}
           <select value={compareId} onChange={(e) => setCompareId((e.target as HTMLSelectElement).value)} aria-label="Compare the surface with another survey">
             <option value="">—</option>
-            {others.map((o) => <option key={o.run.id} value={o.run.id}>{o.survey.name} ({formatDate(o.survey.flown_at ?? o.survey.created_at)})</option>)}
+            {others.map((o) => <option key={o.run.id} value={o.run.id}>{o.survey.name} (flown {flightDate(o.survey).text})</option>)}
           </select>
         </label>
         <label><input type="checkbox" checked={showPoints} onChange={() => setShowPoints(!showPoints)} /> Ground points</label>

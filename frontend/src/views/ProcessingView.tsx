@@ -4,12 +4,13 @@
  */
 
 import { useEffect, useMemo, useRef, useState } from "preact/hooks";
-import { api, apiUrl } from "../api/client";
+import { api, apiUrl, getAllPages } from "../api/client";
 import type { LogLine, Run, RunDetail, Step } from "../api/types";
 import { ErrorBox, Loading, Note, ProgressBar, StatePill } from "../components/ui";
 import { useLoad } from "../hooks";
 import { EtaEstimator } from "../lib/eta";
 import { formatDateTime, formatDuration } from "../lib/format";
+import { loadSteps, parseSetting, settingFields, type SettingField } from "../lib/steps";
 import { runHref, showRun, useStartRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
@@ -106,7 +107,7 @@ function RunPanel({ ctx, run }: { ctx: SurveyContext; run: Run }) {
     };
     (async () => {
       try {
-        const [d, l] = await Promise.all([api.get<RunDetail>(`/runs/${run.id}`), api.get<LogLine[]>(`/runs/${run.id}/logs`, { query: { limit: 2000 } })]);
+        const [d, l] = await Promise.all([api.get<RunDetail>(`/runs/${run.id}`), getAllPages<LogLine>(`/runs/${run.id}/logs`, { max: 5000 })]);
         if (stopped) return;
         ingest(d);
         setLogs(l);
@@ -201,7 +202,7 @@ function RunPanel({ ctx, run }: { ctx: SurveyContext; run: Run }) {
                 </>
               ) : null}
               {s.error ? <div class="step-error">{s.error}</div> : null}
-              {s.state === "succeeded" && s.summary ? <StepSummary step={s} /> : null}
+              {(s.state === "succeeded" || (s.state === "skipped" && !s.reused_from_step_id)) && s.summary ? <StepSummary step={s} /> : null}
             </li>
           );
         })}
@@ -216,6 +217,10 @@ function StepSummary({ step }: { step: Step }) {
   const s = step.summary ?? {};
   const bits: string[] = [];
   const pick = (o: any, ...keys: string[]) => keys.map((k) => o?.[k]).find((v) => v !== undefined && v !== null);
+  if (s.skipped === true) {
+    // a step with nothing to do, e.g. the GNSS step of a survey of photos alone: its reason
+    return <div class="small">{`skipped: ${s.reason ?? "nothing to do"}`}</div>;
+  }
   if (step.name === "gnss") {
     const fix = pick(s, "fix_rate", "fixed_fraction", "fix_ratio") ?? pick(s.quality, "fix_rate", "fixed_fraction");
     if (typeof fix === "number") bits.push(`${Math.round((fix <= 1 ? fix * 100 : fix))} % fixed`);
@@ -228,6 +233,20 @@ function StepSummary({ step }: { step: Step }) {
     if (im?.registered !== undefined) bits.push(`${im.registered} of ${im.total} photos oriented`);
     const rms = s.check_points?.statistics?.["3d"]?.rmse_m;
     if (typeof rms === "number") bits.push(`check RMSE ${(rms * 100).toFixed(1)} cm`);
+    if (Array.isArray(s.cameras) && s.cameras.length > 1) bits.push(`${s.cameras.length} cameras`);
+    // what the absolute position rests on, the block's bending, and what was left out (named)
+    const lines: string[] = [];
+    if (typeof s.absolute_accuracy?.text === "string") lines.push(s.absolute_accuracy.text);
+    if (typeof s.doming?.text === "string") lines.push(s.doming.text);
+    const warnings: string[] = Array.isArray(s.warnings) ? s.warnings.filter((w: unknown) => typeof w === "string") : [];
+    const notable = warnings.filter((w) => w.includes(": left out") || w.startsWith("doming"));
+    return (
+      <div class="small step-georef-summary">
+        {bits.length ? <div>{bits.join(" · ")}</div> : null}
+        {lines.map((l) => <div key={l}>{l}</div>)}
+        {notable.map((w) => <div key={w} class="warning-text">{w}</div>)}
+      </div>
+    );
   }
   return bits.length ? <div class="small">{bits.join(" · ")}</div> : null;
 }
@@ -250,23 +269,38 @@ function CancelButton({ run, onDone }: { run: RunDetail; onDone: (d: RunDetail) 
   );
 }
 
-interface KnownSetting {
-  section: string;
-  key: string;
-  label: string;
-  options?: string[];
-  kind?: "bool" | "number";
-  hint?: string;
+/** One option of a step's spec as a form field (choices and yes/no as selects, the rest as text parsed by kind). */
+function SettingInput({ f, value, onChange }: { f: SettingField; value: unknown; onChange: (v: unknown) => void }) {
+  const id = `set-${f.section}-${f.key}`;
+  const [bad, setBad] = useState<string | null>(null);
+  const dflt = f.default === undefined || f.default === null ? "" : ` (default ${JSON.stringify(f.default)})`;
+  return (
+    <div class="field">
+      <label for={id}>{f.label} <span class="muted small">({f.section}.{f.key}{f.unit ? `, ${f.unit}` : ""})</span></label>
+      {f.kind === "choice" || f.kind === "bool" ? (
+        <select id={id} value={value === undefined ? "" : String(value)}
+          onChange={(e) => { const v = (e.target as HTMLSelectElement).value; onChange(v === "" ? undefined : f.kind === "bool" ? v === "true" : v); }}>
+          <option value="">default{dflt}</option>
+          {f.kind === "bool" ? [<option key="t" value="true">yes</option>, <option key="f" value="false">no</option>]
+            : f.options!.map((o) => <option key={o} value={o}>{o}</option>)}
+        </select>
+      ) : (
+        <input id={id} type="text" inputMode={f.kind === "number" || f.kind === "integer" ? "decimal" : undefined}
+          placeholder={`default${dflt}`} value={value === undefined ? "" : typeof value === "string" ? value : JSON.stringify(value)}
+          aria-invalid={bad ? true : undefined}
+          onChange={(e) => {
+            try {
+              onChange(parseSetting(f, (e.target as HTMLInputElement).value));
+              setBad(null);
+            } catch (err) {
+              setBad((err as Error).message);
+            }
+          }} />
+      )}
+      {bad ? <small class="hint error">{bad}</small> : null}
+    </div>
+  );
 }
-
-const KNOWN: KnownSetting[] = [
-  { section: "gnss", key: "freq", label: "Frequencies", options: ["auto", "l1", "l1+l2"] },
-  { section: "gnss", key: "mode", label: "PPK mode", options: ["auto", "kinematic", "known-start"] },
-  { section: "gnss", key: "direction", label: "Filter", options: ["combined", "forward", "backward"] },
-  { section: "georef", key: "mode", label: "Adjustment", options: ["joint", "gcp", "similarity"], hint: "joint: GNSS and control points together" },
-  { section: "georef", key: "camera_model", label: "Camera model", options: ["brown", "radial", "fisheye"] },
-  { section: "georef", key: "estimate_delay", label: "Estimate trigger delay", kind: "bool" },
-];
 
 function Rerun({ ctx, run }: { ctx: SurveyContext; run: RunDetail }) {
   const [open, setOpen] = useState(false);
@@ -278,7 +312,9 @@ function Rerun({ ctx, run }: { ctx: SurveyContext; run: RunDetail }) {
   const [busy, setBusy] = useState(false);
   const text = useMemo(() => JSON.stringify(settings, null, 2), [settings]);
 
-  const setValue = (k: KnownSetting, v: unknown) => {
+  const steps = useLoad((signal) => loadSteps(signal), []);
+  const fields = useMemo(() => (steps.data ? settingFields(steps.data) : []), [steps.data]);
+  const setValue = (k: { section: string; key: string }, v: unknown) => {
     const next = { ...settings, [k.section]: { ...(settings[k.section] ?? {}) } };
     if (v === "" || v === undefined) delete next[k.section][k.key];
     else next[k.section][k.key] = v;
@@ -324,31 +360,23 @@ function Rerun({ ctx, run }: { ctx: SurveyContext; run: RunDetail }) {
         <div class="field">
           <label for="from-step">From step</label>
           <select id="from-step" value={fromStep} onChange={(e) => setFromStep((e.target as HTMLSelectElement).value)}>
-            {["gnss", "georef", "dense", "volumes", "report"].map((s) => <option key={s} value={s}>{STEP_TITLE[s]}</option>)}
+            {(steps.data ?? []).map((sp) => <option key={sp.name} value={sp.name}>{STEP_TITLE[sp.name] ?? sp.title}</option>)}
           </select>
           <small class="hint">Earlier steps with unchanged inputs and settings are reused.</small>
         </div>
-        {KNOWN.map((k) => {
-          const id = `set-${k.section}-${k.key}`;
-          const cur = settings[k.section]?.[k.key];
-          return (
-            <div class="field" key={id}>
-              <label for={id}>{k.label} <span class="muted small">({k.section})</span></label>
-              {k.kind === "bool" ? (
-                <select id={id} value={cur === undefined ? "" : String(cur)} onChange={(e) => { const v = (e.target as HTMLSelectElement).value; setValue(k, v === "" ? undefined : v === "true"); }}>
-                  <option value="">default</option><option value="true">yes</option><option value="false">no</option>
-                </select>
-              ) : (
-                <select id={id} value={cur === undefined ? "" : String(cur)} onChange={(e) => setValue(k, (e.target as HTMLSelectElement).value)}>
-                  <option value="">default</option>
-                  {k.options!.map((o) => <option key={o} value={o}>{o}</option>)}
-                </select>
-              )}
-              {k.hint ? <small class="hint">{k.hint}</small> : null}
-            </div>
-          );
-        })}
+        {fields.filter((f) => !f.advanced).map((f) => (
+          <SettingInput key={`${f.section}-${f.key}`} f={f} value={settings[f.section]?.[f.key]} onChange={(v) => setValue(f, v)} />
+        ))}
       </div>
+      {steps.error ? <ErrorBox error={steps.error} /> : null}
+      <details>
+        <summary>Advanced settings</summary>
+        <div class="form-grid">
+          {fields.filter((f) => f.advanced).map((f) => (
+            <SettingInput key={`${f.section}-${f.key}`} f={f} value={settings[f.section]?.[f.key]} onChange={(v) => setValue(f, v)} />
+          ))}
+        </div>
+      </details>
       <details>
         <summary>All settings (JSON)</summary>
         <label for="settings-json" class="sr-only">Settings as JSON</label>

@@ -7,7 +7,7 @@ import type { Me, Page, Site, Stockpile, Survey, VolumePoint } from "../api/type
 import { LineChart, type Series } from "../components/LineChart";
 import { ErrorBox, Field, Loading, StatePill } from "../components/ui";
 import { useLoad } from "../hooks";
-import { formatDate, formatVolume } from "../lib/format";
+import { flightDate, formatVolume, formatVolumePm } from "../lib/format";
 import { formatLength } from "../lib/residuals";
 import { href, navigate } from "../router";
 
@@ -88,7 +88,7 @@ export function SiteView({ siteId, me }: { siteId: string; me: Me }) {
                 return (
                   <tr key={sv.id}>
                     <th scope="row"><a href={href("surveys", sv.id)}>{sv.name}</a></th>
-                    <td>{formatDate(sv.flown_at ?? sv.created_at)}</td>
+                    <td title={flightDate(sv).note || undefined}>{flightDate(sv).text}</td>
                     <td>{sum ? <StatePill state={sum.latestRun?.state ?? "none"} /> : "…"}</td>
                     <td class="num">{sum?.stats ? formatLength(sum.stats.horizontal.rmse, "cm") : "–"}</td>
                     <td class="num">{sum?.stats ? formatLength(sum.stats.dz.rmse, "cm") : "–"}</td>
@@ -124,8 +124,8 @@ export function SiteView({ siteId, me }: { siteId: string; me: Me }) {
                 const last = [...h].reverse().find((x) => x.volume_m3 !== null);
                 return (
                   <li key={p.id}>
-                    <strong>{p.name}</strong> <span class="muted">base {p.base}{p.material ? ` · ${p.material}` : ""}</span>
-                    {last ? <> — {formatVolume(last.volume_m3)} <span class="muted">({last.survey_name})</span></> : null}
+                    <strong>{p.name}</strong> <span class="muted">base {p.base}{p.material ? ` · ${p.material_label || p.material}` : ""}</span>
+                    {last ? <> — {formatVolumePm(last.volume_m3, last.sigma_m3)} <span class="muted">({last.survey_name})</span></> : null}
                   </li>
                 );
               })}

@@ -6,7 +6,7 @@ import { type SiteSummary, siteSummaries, totalVolume } from "../api/summaries";
 import type { Me, Page, Site } from "../api/types";
 import { ErrorBox, Field, Loading, StatePill } from "../components/ui";
 import { useLoad } from "../hooks";
-import { formatDate, formatVolume } from "../lib/format";
+import { flightDate, formatVolume } from "../lib/format";
 import { formatLength } from "../lib/residuals";
 import { href, navigate } from "../router";
 
@@ -56,7 +56,7 @@ function SiteCard({ site, summary, loading }: { site: Site; summary?: SiteSummar
         <>
           <p>
             Latest survey: <a href={href("surveys", latest.survey.id)}>{latest.survey.name}</a>{" "}
-            <span class="muted">({formatDate(latest.survey.flown_at ?? latest.survey.created_at)})</span>{" "}
+            <span class="muted">(flown {flightDate(latest.survey).text})</span>{" "}
             <StatePill state={run?.state ?? "none"} />
           </p>
           <dl class="figures-inline">

@@ -4,7 +4,7 @@ import { api } from "../api/client";
 import type { Me, Page, Run, Site, Survey } from "../api/types";
 import { ErrorBox, Loading, StatePill, Tabs } from "../components/ui";
 import { useLoad } from "../hooks";
-import { formatDate, formatDateTime } from "../lib/format";
+import { flightDate, formatDateTime } from "../lib/format";
 import { href, navigate } from "../router";
 import { AccuracyView } from "./AccuracyView";
 import { DownloadsView } from "./DownloadsView";
@@ -72,7 +72,7 @@ export function SurveyView({ surveyId, tab, query, me }: { surveyId: string; tab
       </nav>
       <div class="page-head">
         <h1>{survey.data.name}</h1>
-        <span class="muted">flown {formatDate(survey.data.flown_at ?? survey.data.created_at)}</span>
+        <FlightDate survey={survey.data} />
       </div>
       <Tabs label="Survey views" current={current} tabs={TABS.map(([id, label]) => ({ id, label, href: href("surveys", surveyId, id) + runQuery }))} />
       {resultTab && runList.length > 1 ? (
@@ -98,5 +98,15 @@ export function SurveyView({ surveyId, tab, query, me }: { surveyId: string; tab
         {current === "downloads" && run ? <DownloadsView ctx={ctx} run={run} /> : null}
       </div>
     </section>
+  );
+}
+
+/** "flown 2024-06-24 (from the GNSS data)": the date given or read from the data, never the upload date. */
+export function FlightDate({ survey }: { survey: Survey }) {
+  const d = flightDate(survey);
+  return (
+    <span class="muted" data-testid="flight-date" title={d.note || undefined}>
+      {d.known ? `flown ${d.text}` : "flight date not known yet"}{d.note && d.known ? ` (${d.note})` : ""}
+    </span>
   );
 }

@@ -4,20 +4,16 @@
  * which gives each pile's volume over time. The change map compares this surface with another survey.
  */
 
-import { useEffect, useMemo, useState } from "preact/hooks";
+import { useEffect, useState } from "preact/hooks";
 import { api } from "../api/client";
-import { checkRows } from "../api/summaries";
-import type { ResidualsResponse, Run, RunDetail, RunVolume, Stockpile, VolumePoint } from "../api/types";
+import type { OutlineVolume, Run, RunDetail, RunVolume, Stockpile, VolumePoint } from "../api/types";
 import { ColourLegend } from "../components/ColourLegend";
 import { LineChart } from "../components/LineChart";
 import { MapView, type RasterLayer } from "../components/MapView";
 import { ErrorBox, Note } from "../components/ui";
 import { useLoad } from "../hooks";
-import { readGrid, windowFor } from "../lib/cog";
-import { formatArea, formatDate, formatVolume } from "../lib/format";
-import { type Ring, area, bboxOf, outlinesFromGeoJson, ringToGeoJson, selfIntersects } from "../lib/geom";
-import { type QuickBase, type QuickVolume, volumeUnderOutline } from "../lib/raster";
-import { residualStats } from "../lib/residuals";
+import { flightDate, formatArea, formatVolume, formatVolumePm } from "../lib/format";
+import { type Ring, area, outlinesFromGeoJson, ringToGeoJson, selfIntersects } from "../lib/geom";
 import { showRun } from "./startRun";
 import { pileOutlines, useChange, useSiteRuns } from "./MapTab";
 import { autoRange, heightAt, useRunRaster } from "./rasterLayers";
@@ -36,10 +32,12 @@ function baseText(kind: string, z: string): string {
   return kind === "elevation" ? `elevation:${Number(z)}` : kind;
 }
 
-function quickBase(kind: string, z: string): QuickBase {
-  if (kind === "elevation") return { elevation: Number(z) };
-  if (kind === "tin") return "plane"; // closest the browser estimate has
-  return kind as QuickBase;
+/**
+ * The volume of an outline as the server measures it (POST /runs/{id}/volumes: the volumes step's own
+ * computation on the run's DSM, nothing saved), so what is shown before saving is what the stockpile gets.
+ */
+export function outlineVolume(runId: string, ring: Ring, base: string, signal?: AbortSignal): Promise<OutlineVolume> {
+  return api.post<OutlineVolume>(`/runs/${runId}/volumes`, { outline: ringToGeoJson(ring), base }, { signal });
 }
 
 export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
@@ -56,7 +54,7 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const [compareId, setCompareId] = useState("");
   const [error, setError] = useState<Error | null>(null);
   const [busy, setBusy] = useState(false);
-  const [quick, setQuick] = useState<QuickVolume | null>(null);
+  const [quick, setQuick] = useState<OutlineVolume | null>(null);
   const [quickErr, setQuickErr] = useState<string | null>(null);
   const [coordText, setCoordText] = useState("");
 
@@ -68,38 +66,27 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   }, [dsm.grid]);
   const piles = useLoad((signal) => api.get<Stockpile[]>(`/sites/${ctx.site.id}/stockpiles`, { signal }), [ctx.site.id]);
   const runVolumes = useLoad((signal) => api.maybe<{ stockpiles: RunVolume[] }>(`/runs/${run.id}/results/volumes`, { signal }), [run.id]);
-  const residuals = useLoad((signal) => api.maybe<ResidualsResponse>(`/runs/${run.id}/results/residuals`, { signal }), [run.id]);
   const history = useLoad(async (signal) => (selected ? api.get<VolumePoint[]>(`/stockpiles/${selected}/volumes`, { signal }) : null), [selected]);
   const siteRuns = useSiteRuns(ctx.site.id);
   const others = (siteRuns.data ?? []).filter((x) => x.run.id !== run.id);
   const change = useChange(compareId ? dsm.grid : null, others.find((o) => o.run.id === compareId)?.run ?? null);
 
-  const sigmaZ = useMemo(() => {
-    const st = residualStats(checkRows(residuals.data ?? null));
-    return st ? st.dz.rmse : 0.03;
-  }, [residuals.data]);
-
-  // The quick estimate, on a full-resolution window of the DSM around the outline.
+  // The volume of the outline before it is saved: measured by the server, as the saved stockpile will be.
   useEffect(() => {
     setQuick(null);
     setQuickErr(null);
-    if (!closed || draft.length < 3 || !dsm.info) return;
-    if (baseKind === "elevation" && !Number.isFinite(Number(baseZ))) return;
+    if (!closed || draft.length < 3) return;
+    if (baseKind === "elevation" && (baseZ.trim() === "" || !Number.isFinite(Number(baseZ)))) return;
+    if (selfIntersects(draft)) {
+      setQuickErr("the outline crosses itself");
+      return;
+    }
     const ac = new AbortController();
-    (async () => {
-      try {
-        const b = bboxOf(draft)!;
-        const m = 2 * dsm.info!.resX;
-        const w = windowFor(dsm.info!, { minX: b.minX - m, minY: b.minY - m, maxX: b.maxX + m, maxY: b.maxY + m }, Infinity, 2048);
-        if (!w) throw new Error("the outline is outside the surface model");
-        const g = await readGrid(dsm.info!, w, ac.signal);
-        if (!ac.signal.aborted) setQuick(volumeUnderOutline(g, draft, quickBase(baseKind, baseZ), sigmaZ));
-      } catch (e) {
-        if (!ac.signal.aborted) setQuickErr((e as Error).message);
-      }
-    })();
+    outlineVolume(run.id, draft, baseText(baseKind, baseZ), ac.signal)
+      .then((v) => { if (!ac.signal.aborted) setQuick(v); })
+      .catch((e) => { if (!ac.signal.aborted) setQuickErr((e as Error).message); });
     return () => ac.abort();
-  }, [closed, draft, baseKind, baseZ, dsm.info, sigmaZ]);
+  }, [closed, draft, baseKind, baseZ, run.id]);
 
   const extent = ortho.info?.bbox ?? dsm.info?.bbox ?? null;
   const rasters: RasterLayer[] = [];
@@ -203,13 +190,13 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
           <label>Change since{" "}
             <select value={compareId} onChange={(e) => setCompareId((e.target as HTMLSelectElement).value)}>
               <option value="">—</option>
-              {others.map((o) => <option key={o.run.id} value={o.run.id}>{o.survey.name} ({formatDate(o.survey.flown_at ?? o.survey.created_at)})</option>)}
+              {others.map((o) => <option key={o.run.id} value={o.run.id}>{o.survey.name} (flown {flightDate(o.survey).text})</option>)}
             </select>
           </label>
-          {ctx.canEdit ? <button type="button" class={drawing ? "primary" : "secondary"} onClick={drawing ? closeDraft : startDraw} aria-pressed={drawing}>{drawing ? `Finish outline (${draft.length} corners)` : "Draw an outline"}</button> : null}
-          {drawing ? <button type="button" class="ghost" onClick={() => { setDrawing(false); setDraft([]); }}>Cancel</button> : null}
+          {/* the same width in both states, and the drawing's hint and Cancel inside the map: nothing above
+              the map changes size when drawing starts, so the map never moves under the cursor */}
+          {ctx.canEdit ? <button type="button" class={drawing ? "primary draw-toggle" : "secondary draw-toggle"} onClick={drawing ? closeDraft : startDraw} aria-pressed={drawing}>{drawing ? `Finish outline (${draft.length} corners)` : "Draw an outline"}</button> : null}
         </div>
-        {drawing ? <p class="small" aria-live="polite">Click the corners of the pile's toe on the map (or focus the map and press Space at the centre cross); double-click or Enter to finish, Backspace removes the last corner.</p> : null}
         <ErrorBox error={dsm.error} title="Surface model" />
         <ErrorBox error={change.error} title="Change map" />
         <MapView
@@ -225,6 +212,12 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
             onCancel: () => { setDrawing(false); setDraft([]); },
           } : null}
           onSelectOutline={(id) => id !== "draft" && !drawing && setSelected(id)}
+          overlay={drawing ? (
+            <>
+              <span class="small" aria-live="polite">Click the corners of the pile's toe (or focus the map and press Space at the centre cross); double-click or Enter to finish, Backspace removes the last corner.</span>
+              <button type="button" class="ghost small" onClick={() => { setDrawing(false); setDraft([]); }}>Cancel</button>
+            </>
+          ) : null}
           onView={(b, ppm) => { ortho.viewChanged(b, ppm); dsm.viewChanged(b, ppm); }}
           readout={(x, y) => {
             const h = heightAt([dsm.detailGrid, dsm.grid], x, y);
@@ -270,7 +263,7 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
                     <input id="base-z" type="number" step="0.01" required value={baseZ} onInput={(e) => setBaseZ((e.target as HTMLInputElement).value)} />
                   </div>
                 ) : null}
-                <QuickResult q={quick} err={quickErr} loading={closed && !quick && !quickErr && !!dsm.info} sigmaZ={sigmaZ} />
+                <QuickResult q={quick} err={quickErr} loading={closed && !quick && !quickErr} />
                 <div class="field">
                   <label for="pile-name">Name</label>
                   <input id="pile-name" required value={name} onInput={(e) => setName((e.target as HTMLInputElement).value)} />
@@ -307,9 +300,9 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
                     <tr key={v.name} class={v.stockpile_id === selected ? "selected" : ""}>
                       <th scope="row"><button type="button" class="link" onClick={() => setSelected(v.stockpile_id)}>{v.name}</button></th>
                       <td>{v.base}</td>
-                      <td class="num">{formatVolume(v.cut_m3)}</td>
-                      <td class="num">{formatVolume(v.fill_m3)}</td>
-                      <td class="num"><strong>{formatVolume(v.volume_m3)}</strong>{v.sigma_m3 ? ` ± ${formatVolume(v.sigma_m3)}` : ""}</td>
+                      <td class="num">{formatVolume(v.cut_m3, v.sigma_m3)}</td>
+                      <td class="num">{formatVolume(v.fill_m3, v.sigma_m3)}</td>
+                      <td class="num"><strong>{formatVolumePm(v.volume_m3, v.sigma_m3)}</strong></td>
                       <td class="num">{formatArea(v.area_m2)}</td>
                     </tr>
                   ))}
@@ -328,7 +321,7 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
         {selPile ? (
           <section aria-labelledby="hist-title">
             <h2 id="hist-title" class="h3">{selPile.name} over time</h2>
-            <p class="small muted">Base {selPile.base}{selPile.material ? ` · ${selPile.material}` : ""}{selPile.density_t_m3 ? ` · ${selPile.density_t_m3} t/m³` : ""} · {formatArea(area(pileOutlines([selPile])[0].ring))}</p>
+            <p class="small muted">Base {selPile.base}{selPile.material ? ` · ${selPile.material_label || selPile.material}` : ""}{selPile.density_t_m3 ? ` · ${selPile.density_t_m3} t/m³` : ""} · {formatArea(area(pileOutlines([selPile])[0].ring))}</p>
             {history.data ? (
               <LineChart title={`Net volume of ${selPile.name}`} yLabel="m³" xTime yZero
                 series={[{ name: selPile.name, colour: "#1f6feb", markers: true, points: history.data.filter((h) => h.volume_m3 !== null).map((h) => ({ x: Date.parse(h.measured_at ?? "") || 0, y: h.volume_m3, err: h.sigma_m3 ?? null, label: `${h.survey_name} (run ${h.run_number})` })) }]}
@@ -342,18 +335,22 @@ export function VolumesView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   );
 }
 
-function QuickResult({ q, err, loading, sigmaZ }: { q: QuickVolume | null; err: string | null; loading: boolean; sigmaZ: number }) {
-  if (err) return <Note kind="warning">No estimate: {err}.</Note>;
-  if (loading) return <p class="small muted" aria-live="polite">Computing…</p>;
+function QuickResult({ q, err, loading }: { q: OutlineVolume | null; err: string | null; loading: boolean }) {
+  if (err) return <Note kind="warning">No volume: {err}.</Note>;
+  if (loading) return <p class="small muted" aria-live="polite">Measuring on the surface model…</p>;
   if (!q) return null;
+  const sigma = q.uncertainty?.sigma_m3 ?? null;
+  const net = q.volume_m3 ?? q.net_m3;
+  const b = typeof q.base === "object" && q.base ? q.base : {};
+  const baseZ = typeof b.elevation_m === "number" ? b.elevation_m : typeof b.z_ref_m === "number" ? b.z_ref_m : null;
   return (
     <div class="quick" aria-live="polite" data-testid="quick-volume">
       <dl class="figures-inline">
-        <div><dt>Cut (above base)</dt><dd data-value={q.cut_m3}>{formatVolume(q.cut_m3)}</dd></div>
-        <div><dt>Fill (below base)</dt><dd data-value={q.fill_m3}>{formatVolume(q.fill_m3)}</dd></div>
-        <div><dt>Net</dt><dd data-value={q.net_m3}><strong>{formatVolume(q.net_m3)}</strong> ± {formatVolume(q.sigma_m3)}</dd></div>
+        <div><dt>Cut (above base)</dt><dd data-value={q.cut_m3}>{formatVolume(q.cut_m3, sigma)}</dd></div>
+        <div><dt>Fill (below base)</dt><dd data-value={q.fill_m3}>{formatVolume(q.fill_m3, sigma)}</dd></div>
+        <div><dt>Net</dt><dd data-value={net}><strong>{formatVolumePm(net, sigma)}</strong></dd></div>
       </dl>
-      <p class="small muted">Estimate in the browser from the surface model ({q.cells.toLocaleString("en-GB")} cells{q.missingCells ? `, ${q.missingCells} without data` : ""}{q.baseHeight_m !== null ? `, base at ${q.baseHeight_m.toFixed(2)} m` : ""}); ± is 1σ from the survey's vertical error ({(sigmaZ * 100).toFixed(1)} cm) and the base. Saved stockpiles are measured exactly by the server in every run.</p>
+      <p class="small muted">Measured by the server on this run's surface model, exactly as the volumes step measures a saved stockpile{baseZ !== null ? ` (base at ${baseZ.toFixed(2)} m)` : ""}; ± is 1σ.</p>
     </div>
   );
 }
