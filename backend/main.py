@@ -11,7 +11,7 @@ from fastapi.responses import FileResponse
 
 from .api.router import include_api
 from .core.heap_freeze import HeapFreeze
-from .core.limits import ConcurrencyLimit
+from .core.limits import ConcurrencyLimit, RequestBodyGuard
 from .core.problems import NotFound, install_problem_handlers
 from .core.settings import Settings, get_settings
 from .db.session import get_database
@@ -42,6 +42,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(HeapFreeze)
     app.add_middleware(ConcurrencyLimit, limit=settings.max_concurrent_requests,
                        read_limit=settings.resolved_max_concurrent_reads())
+    # outermost: a request is admitted only once its body is here (slow senders hold no admission slot)
+    app.add_middleware(RequestBodyGuard, settings=settings)
     include_api(app)
     dist = settings.resolved_frontend_dist()
     if dist is not None:

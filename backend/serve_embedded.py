@@ -147,17 +147,13 @@ def main(argv=None) -> int:
     import uvicorn
 
     def stop_worker(*_):
-        if worker is not None and worker.poll() is None:
-            os.killpg(worker.pid, signal.SIGTERM)
-            try:
-                worker.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(worker.pid, signal.SIGKILL)
+        if worker is not None:
+            stop_process_group(worker)
 
     # uvicorn re-raises SIGINT/SIGTERM after its graceful shutdown (the process then dies without running
     # `finally`): stop the worker from uvicorn's shutdown instead
-    config = uvicorn.Config("backend.main:app", host=args.host, port=args.port, log_level="warning")
-    server = uvicorn.Server(config)
+    server = uvicorn.Server(uvicorn_config(settings, "backend.main:app", args.host, args.port))
+    _raise_open_files_limit()
     try:
         import asyncio
 
@@ -167,9 +163,71 @@ def main(argv=None) -> int:
             finally:
                 stop_worker()
         asyncio.run(serve())
+    except KeyboardInterrupt:     # Ctrl-C: uvicorn has shut down, the worker is stopped; no traceback
+        pass
     finally:
         stop_worker()
     return 0
+
+
+def uvicorn_config(settings, app: str, host: str, port: int, **kw):
+    """uvicorn's configuration for the embedded server: the HTTP protocol with a header deadline and size
+    limit (core/http_protocol.py); the body's deadline is the application's (core/limits.py)."""
+    import uvicorn
+
+    from .core.http_protocol import guarded_protocol
+
+    return uvicorn.Config(app, host=host, port=port, log_level=kw.pop("log_level", "warning"),
+                          http=guarded_protocol(settings), timeout_keep_alive=5, **kw)
+
+
+def stop_process_group(proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    """SIGTERM to the worker's process group (the worker and its embedded beat), a wait for every member
+    to be gone, SIGKILL to what is left after ``timeout_s``."""
+    import time
+
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return
+    deadline = time.monotonic() + timeout_s
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        pass
+    while time.monotonic() < deadline and _group_alive(proc.pid):
+        time.sleep(0.1)
+    if _group_alive(proc.pid):
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        if proc.poll() is None:
+            proc.wait(timeout=10)
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+
+
+def _raise_open_files_limit() -> None:
+    """Each client connection is a file descriptor: the soft limit (often 1024) raised to the hard one, so
+    that many idle or slow connections do not stop the server from accepting new ones."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        want = hard if hard != resource.RLIM_INFINITY else 65536
+        if soft != resource.RLIM_INFINITY and soft < want:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+    except (ImportError, ValueError, OSError):
+        pass
 
 
 def _die_with_parent() -> None:

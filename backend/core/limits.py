@@ -15,6 +15,9 @@ chunks in) keep the general limit only, so slow uploads do not hold back readers
 from __future__ import annotations
 
 import asyncio
+import errno
+import json
+import re
 
 SAFE_METHODS = ("GET", "HEAD")
 
@@ -57,3 +60,174 @@ class ConcurrencyLimit:
             await self.app(scope, receive, send_wrapper)
         finally:
             release()
+
+
+# ------------------------------------------------------------------------------------------ request bodies
+
+_UPLOAD_CHUNK_PATH = re.compile(r"^/api/v1/uploads/[^/]+/?$")
+MEMORY_BODY_BYTES = 1024 * 1024     # larger bodies (upload chunks) are spooled to a file while they arrive
+
+
+class RequestBodyGuard:
+    """The request body is received in full *before* the request goes further (admission, database,
+    authentication), against a deadline and a size limit.
+
+    Without it a client that sends a request's headers and then its body one byte every few seconds holds
+    an admission slot (ConcurrencyLimit is inside) for as long as it likes, and a write request holds the
+    database's write lock while its body trickles in: 32 such connections froze the API for everyone.
+
+    Deadline: the body must arrive within ``timeout_s`` plus one second per ``min_rate`` bytes received so
+    far (a 64 MiB upload chunk may take as long as it keeps sending at min_rate; one byte every 5 s is cut
+    off after timeout_s), else ``408 Request Timeout`` and the connection is closed. Size: a declared or
+    received body longer than ``max_body`` (``max_chunk`` for an upload chunk, PUT /api/v1/uploads/{id})
+    is answered ``413`` at once. A slow client waiting here holds one coroutine and its socket, nothing the
+    other requests need. Bodies up to 1 MiB are kept in memory, larger ones spooled to a file in
+    ``spool_dir`` (a full disk there: ``507``); the application then reads the body at disk speed."""
+
+    def __init__(self, app, settings):
+        self.app = app
+        self.timeout_s = settings.request_body_timeout_s
+        self.min_rate = settings.request_body_min_rate
+        self.max_body = settings.max_request_body_bytes
+        self.max_chunk = settings.max_chunk_bytes
+        self.spool_dir = settings.resolved_work_dir() / "tmp"
+
+    def _limit(self, scope) -> int:
+        if scope.get("method") == "PUT" and _UPLOAD_CHUNK_PATH.match(scope.get("path", "")):
+            return self.max_chunk
+        return self.max_body
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        length = chunked = None
+        for k, v in scope.get("headers", ()):
+            if k == b"content-length":
+                length = v
+            elif k == b"transfer-encoding":
+                chunked = v
+        if length is not None:
+            try:
+                length = int(length)
+            except ValueError:
+                await _refuse(send, 400, "Content-Length is not a number")
+                return
+        if chunked is None and not length:            # HTTP/1.1: no Content-Length nor chunked: no body
+            await self.app(scope, receive, send)
+            return
+        limit = self._limit(scope)
+        if length is not None and length > limit:
+            await _refuse(send, 413, f"request body of {length} bytes; at most {limit} bytes are accepted here")
+            return
+        body = _Body(self.spool_dir)
+        try:
+            outcome = await self._receive_body(receive, body, limit)
+            if outcome == "disconnected":
+                return
+            if outcome is not None:
+                await _refuse(send, *outcome)
+                return
+            await self.app(scope, body.replay(receive), send)
+        finally:
+            body.close()
+
+    async def _receive_body(self, receive, body: "_Body", limit: int):
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        while True:
+            left = t0 + self.timeout_s + body.size / self.min_rate - loop.time()
+            if left <= 0:
+                return _timeout(body.size, self.timeout_s, self.min_rate)
+            try:
+                message = await asyncio.wait_for(receive(), left)
+            except asyncio.TimeoutError:
+                return _timeout(body.size, self.timeout_s, self.min_rate)
+            if message["type"] == "http.disconnect":
+                return "disconnected"
+            data = message.get("body", b"")
+            if body.size + len(data) > limit:
+                return 413, f"request body longer than {limit} bytes, the most accepted here"
+            try:
+                body.write(data)
+            except OSError as exc:
+                if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                    return (507, "the server's disk is full: the request could not be received; nothing was "
+                                 "stored. Retry later (the operator has been told by /health)")
+                raise
+            if not message.get("more_body", False):
+                return None
+
+
+def _timeout(received: int, timeout_s: float, min_rate: int) -> tuple[int, str]:
+    return 408, (f"request body not received in time ({received} bytes arrived; a body must arrive within "
+                 f"{timeout_s:g} s plus 1 s per {min_rate} bytes): send it at once, at a steady rate")
+
+
+class _Body:
+    """A request body being received: in memory, or in a spool file past MEMORY_BODY_BYTES."""
+
+    def __init__(self, spool_dir):
+        self.spool_dir = spool_dir
+        self.parts: list[bytes] = []
+        self.size = 0
+        self.file = None
+
+    def write(self, data: bytes) -> None:
+        if not data:
+            return
+        if self.file is None and self.size + len(data) > MEMORY_BODY_BYTES:
+            import tempfile
+
+            self.spool_dir.mkdir(parents=True, exist_ok=True)
+            self.file = tempfile.TemporaryFile(dir=self.spool_dir, prefix="body-")
+            for p in self.parts:
+                self.file.write(p)
+            self.parts = []
+        if self.file is not None:
+            self.file.write(data)
+        else:
+            self.parts.append(data)
+        self.size += len(data)
+
+    def replay(self, receive):
+        """An ASGI receive that gives the stored body, then hands over to the connection's own (which
+        tells the application when the client goes away)."""
+        state = {"done": False}
+        if self.file is not None:
+            self.file.flush()
+            self.file.seek(0)
+
+        async def replayed():
+            if state["done"]:
+                return await receive()
+            if self.file is None:
+                state["done"] = True
+                return {"type": "http.request", "body": b"".join(self.parts), "more_body": False}
+            data = self.file.read(MEMORY_BODY_BYTES)
+            more = self.file.tell() < self.size
+            if not more:
+                state["done"] = True
+            return {"type": "http.request", "body": data, "more_body": more}
+
+        return replayed
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+            self.file = None
+        self.parts = []
+
+
+async def _refuse(send, status: int, detail: str) -> None:
+    """A problem+json answer from outside the application (its body not read: the connection closes)."""
+    from http import HTTPStatus
+
+    title = HTTPStatus(status).phrase
+    body = json.dumps({"type": "https://georef.example/problems/" + title.lower().replace(" ", "-"),
+                       "title": title, "status": status, "detail": detail}).encode()
+    await send({"type": "http.response.start", "status": status, "headers": [
+        (b"content-type", b"application/problem+json"), (b"content-length", str(len(body)).encode()),
+        (b"connection", b"close"), (b"x-content-type-options", b"nosniff"), (b"x-frame-options", b"DENY"),
+        (b"referrer-policy", b"same-origin")]})
+    await send({"type": "http.response.body", "body": body})

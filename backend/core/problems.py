@@ -77,6 +77,27 @@ class ServiceUnavailable(Problem):
     status, slug = 503, "service-unavailable"
 
 
+class InsufficientStorage(Problem):
+    status, slug = 507, "insufficient-storage"
+
+
+STORAGE_FULL_DETAIL = ("the server's storage is full: what this request sent was not stored (what was stored "
+                       "before is intact); retry later, and tell the operator (GET /api/v1/health reports it)")
+
+
+def storage_full(exc: BaseException | None) -> bool:
+    """A full disk or an exhausted quota (ENOSPC, EDQUOT) anywhere in an exception's chain."""
+    import errno
+
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return False
+
+
 def problem_response(status: int, detail: str, *, slug: str | None = None, instance: str | None = None,
                      headers: dict | None = None, **extra) -> JSONResponse:
     try:
@@ -118,6 +139,12 @@ def install_problem_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(DBAPIError)
     async def _database(request: Request, exc: DBAPIError):
+        orig = getattr(exc, "orig", None)
+        if getattr(orig, "sqlite_errorcode", None) == 13 or getattr(orig, "sqlstate", None) == "53100":
+            # SQLITE_FULL / PostgreSQL disk_full: the transaction was rolled back, nothing half-written
+            log.error("database disk full on %s %s: %s", request.method, request.url.path, orig)
+            return problem_response(507, STORAGE_FULL_DETAIL, slug="insufficient-storage",
+                                    instance=request.url.path, headers={"Retry-After": "60"})
         if exc.connection_invalidated or isinstance(exc, OperationalError):
             log.warning("database unavailable on %s %s: %s", request.method, request.url.path, exc.orig)
             return problem_response(503, "the database is unavailable or busy; retry shortly", slug="unavailable",
@@ -131,8 +158,23 @@ def install_problem_handlers(app: FastAPI) -> None:
         return problem_response(503, "the server is overloaded; retry shortly", slug="unavailable",
                                 instance=request.url.path, headers={"Retry-After": "2"})
 
+    @app.exception_handler(OSError)
+    async def _os_error(request: Request, exc: OSError):
+        """A full disk (ENOSPC, EDQUOT) is 507 with a message; any other OSError is an internal error."""
+        if storage_full(exc):
+            log.error("storage full on %s %s: %s", request.method, request.url.path, exc)
+            return problem_response(507, STORAGE_FULL_DETAIL, slug="insufficient-storage",
+                                    instance=request.url.path, headers={"Retry-After": "60"})
+        log.error("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+        return problem_response(500, "internal error; the incident was logged", slug="internal-error",
+                                instance=request.url.path)
+
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):
+        if storage_full(exc):
+            log.error("storage full on %s %s: %s", request.method, request.url.path, exc)
+            return problem_response(507, STORAGE_FULL_DETAIL, slug="insufficient-storage",
+                                    instance=request.url.path, headers={"Retry-After": "60"})
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return problem_response(500, "internal error; the incident was logged", slug="internal-error",
                                 instance=request.url.path)

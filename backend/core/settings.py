@@ -48,6 +48,19 @@ class Settings(BaseSettings):
     # collect and freeze the long-lived heap after start-up and after requests that import modules, so that
     # full garbage collections stay short (core/heap_freeze.py; docs/deploy.md)
     freeze_heap: bool = True
+    # --- slow and oversized requests (docs/security.md, core/limits.py RequestBodyGuard): a request's body
+    # is received in full before the request is admitted; it must arrive within request_body_timeout_s plus
+    # one second per request_body_min_rate bytes received (else 408), and be at most max_request_body_bytes
+    # (upload chunks: max_chunk_bytes; else 413). The embedded server also closes a connection whose request
+    # headers take longer than request_header_timeout_s (408) or exceed max_request_header_bytes (431)
+    request_body_timeout_s: float = Field(default=20.0, gt=0)
+    request_body_min_rate: int = Field(default=16384, ge=1)       # bytes per second, past the timeout above
+    max_request_body_bytes: int = Field(default=2 * 1024**2, ge=1024)
+    request_header_timeout_s: float = Field(default=10.0, gt=0)
+    max_request_header_bytes: int = Field(default=64 * 1024, ge=1024)
+    # --- storage space: /health reports the storage as full (503) when less than this is free where
+    # uploads and results are written (local disk: the storage folder and the work folder)
+    min_free_storage_bytes: int = Field(default=256 * 1024**2, ge=0)
 
     # --- logins (docs/security.md): failed attempts are counted per account and per client address in the
     # database (every API process sees them); past the free attempts each further failure doubles the wait

@@ -8,6 +8,7 @@ bytes through than it declared."""
 
 from __future__ import annotations
 
+import errno
 import posixpath
 import shutil
 import stat
@@ -19,6 +20,9 @@ from pathlib import Path
 IGNORED_NAMES = {".DS_Store", "Thumbs.db", "desktop.ini"}
 IGNORED_PREFIXES = ("__MACOSX/",)
 SMALL_MEMBER_BYTES = 1024 * 1024   # the ratio limit is not applied below this size (tiny text compresses well)
+MAX_NAME_BYTES = 255               # one file or folder name (NAME_MAX of Linux and most file systems)
+MAX_PATH_BYTES = 1024              # a member's whole relative path (PATH_MAX is 4096 with the folder above)
+MAX_DEPTH = 32
 
 
 class UnsafeArchive(Exception):
@@ -49,8 +53,19 @@ def normalise_member_name(raw: str) -> str:
     if any(p == ".." for p in parts):
         raise UnsafeArchive(f"member {raw!r} points outside the archive folder ('..')")
     if any("\x00" in p for p in parts):
-        raise UnsafeArchive(f"member {raw!r} has a NUL character in its name")
+        raise UnsafeArchive(f"member {_short(raw)!r} has a NUL character in its name")
+    for p in parts:
+        if len(p.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+            raise UnsafeArchive(f"member {_short(raw)!r} has a file or folder name longer than {MAX_NAME_BYTES} "
+                                "bytes (file systems refuse it): rename it")
+    if len(parts) > MAX_DEPTH or len(name.encode("utf-8", "surrogatepass")) > MAX_PATH_BYTES:
+        raise UnsafeArchive(f"member {_short(raw)!r} is nested too deeply or its path is longer than "
+                            f"{MAX_PATH_BYTES} bytes")
     return posixpath.join(*parts) if parts else ""
+
+
+def _short(name: str, n: int = 120) -> str:
+    return name if len(name) <= n else name[:n] + "..."
 
 
 def extract_zip(archive: Path, dest: Path, limits: ArchiveLimits) -> list[ExtractedMember]:
@@ -105,9 +120,9 @@ def extract_zip(archive: Path, dest: Path, limits: ArchiveLimits) -> list[Extrac
             target = (dest_root / name).resolve()
             if dest_root not in target.parents:
                 raise UnsafeArchive(f"member {info.filename!r} points outside the archive folder")
-            target.parent.mkdir(parents=True, exist_ok=True)
             written = 0
             try:
+                target.parent.mkdir(parents=True, exist_ok=True)
                 with zf.open(info) as src, open(target, "wb") as dst:
                     while True:
                         block = src.read(1024 * 1024)
@@ -124,6 +139,11 @@ def extract_zip(archive: Path, dest: Path, limits: ArchiveLimits) -> list[Extrac
                 raise UnsafeArchive(f"member {info.filename!r} is corrupt ({exc})") from None
             except NotImplementedError as exc:
                 raise UnsafeArchive(f"member {info.filename!r} uses an unsupported compression ({exc})") from None
+            except OSError as exc:
+                if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                    raise                # a full disk is the server's problem (507), not the archive's
+                raise UnsafeArchive(f"member {_short(info.filename)!r} cannot be written as a file "
+                                    f"({exc.strerror or exc})") from None
             out.append(ExtractedMember(name, target, written))
         return out
 

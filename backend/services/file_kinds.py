@@ -16,7 +16,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import mmap
 import re
 import struct
 import zlib
@@ -122,9 +121,13 @@ def _iter_text_lines(path: Path, packing: str | None):
 
 
 def _gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:
+    """GPS seconds of a calendar date; ValueError for an impossible one (month 13, a 30-digit year ...)."""
     if y < 100:
         y += 2000 if y < 80 else 1900
-    return (datetime(y, mo, d, h, mi) - GPS_EPOCH).total_seconds() + s
+    try:
+        return (datetime(y, mo, d, h, mi) - GPS_EPOCH).total_seconds() + s
+    except OverflowError:
+        raise ValueError(f"date {y}-{mo}-{d} {h}:{mi} out of range") from None
 
 
 def _looks_binary(data: bytes) -> bool:
@@ -197,7 +200,7 @@ def _rinex_obs_meta(path: Path, packing: str | None, hatanaka: bool, head_text: 
         flag = int(m.group(7))
         try:
             t = _gps_seconds(*(int(m.group(i)) for i in range(1, 6)), float(m.group(6)))
-        except ValueError:   # month 13, day 32, hour 25 ...: a damaged epoch line, named
+        except (ValueError, OverflowError):   # month 13, day 32, hour 25, a year of 30 digits: named
             raise UnrecognisedFile(f"RINEX observation file, line {n_line}: impossible epoch date/time "
                                    f"{line[:30].strip()!r}") from None
         if flag == 5:
@@ -216,41 +219,56 @@ def _rinex_obs_meta(path: Path, packing: str | None, hatanaka: bool, head_text: 
     return meta
 
 
+UBX_SCAN_BYTES = 8 * 1024 * 1024      # the file is scanned in pieces of this size (memory bound)
+_UBX_MAX_FRAME = 16384 + 8            # the core's longest plausible frame (payload limit + header + checksum)
+
+
 def _ubx_meta(path: Path) -> dict:
-    """Time span of the raw measurements (RXM-RAWX) and number of time marks (TIM-TM2) of a UBX log."""
-    first = last = None
-    rawx = tm2 = frames = bad = 0
+    """Time span of the raw measurements (RXM-RAWX) and number of time marks (TIM-TM2) of a UBX log.
+
+    The frames are found by the core's vectorised framing (``find_ubx_frames``: every candidate's
+    Fletcher checksum from two running sums, so a file full of sync bytes costs the same as any other),
+    in pieces of UBX_SCAN_BYTES: time and memory grow linearly with the file, whatever it holds."""
+    import numpy as np
+    from georef_core.gnss.ubx import find_ubx_frames
+
     size = path.stat().st_size
     if size == 0:
         raise UnrecognisedFile("empty file")
-    with open(path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        i = mm.find(b"\xb5\x62")
-        while 0 <= i < size - 8:
-            cls, mid, length = mm[i + 2], mm[i + 3], struct.unpack_from("<H", mm, i + 4)[0]
-            end = i + 6 + length + 2
-            if end > size:
+    first = last = None
+    rawx = tm2 = frames = bad = 0
+    pos = 0
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            data = f.read(UBX_SCAN_BYTES + _UBX_MAX_FRAME)
+            if not data:
                 break
-            ck_a = ck_b = 0
-            for b in mm[i + 2:i + 6 + length]:
-                ck_a = (ck_a + b) & 0xFF
-                ck_b = (ck_b + ck_a) & 0xFF
-            if ck_a == mm[end - 2] and ck_b == mm[end - 1]:
-                frames += 1
-                if cls == 0x02 and mid == 0x15 and length >= 16:
-                    tow, week = struct.unpack_from("<dH", mm, i + 6)
-                    t = week * 604800.0 + tow
-                    first = t if first is None else min(first, t)
-                    last = t if last is None else max(last, t)
-                    rawx += 1
-                elif cls == 0x0D and mid == 0x03:
-                    tm2 += 1
-                i = mm.find(b"\xb5\x62", end)
-            else:
-                bad += 1
-                i = mm.find(b"\xb5\x62", i + 2)
+            at_end = pos + len(data) >= size
+            fr = find_ubx_frames(data)
+            keep = np.ones(len(fr.start), dtype=bool) if at_end else fr.start < UBX_SCAN_BYTES
+            start, length, msg = fr.start[keep], fr.length[keep], fr.msg_id[keep]
+            frames += len(start)
+            bad += fr.n_checksum_errors
+            buf = np.frombuffer(data, dtype=np.uint8)
+            sel = start[(msg == 0x0215) & (length >= 16)]
+            if len(sel):
+                tow = buf[sel[:, None] + 6 + np.arange(8)].copy().view("<f8")[:, 0]
+                week = buf[sel[:, None] + 14 + np.arange(2)].copy().view("<u2")[:, 0]
+                t = week.astype(np.float64) * 604800.0 + tow
+                t = t[np.isfinite(t)]
+                if len(t):
+                    first = float(t.min()) if first is None else min(first, float(t.min()))
+                    last = float(t.max()) if last is None else max(last, float(t.max()))
+                rawx += len(sel)
+            tm2 += int(np.count_nonzero(msg == 0x0D03))
+            if at_end:
+                break
+            ends = start + length + 8
+            pos += max(UBX_SCAN_BYTES, int(ends.max()) if len(ends) else 0)
     if frames == 0:
         raise UnrecognisedFile("u-blox sync bytes found but no valid UBX frame (checksum errors)")
-    meta = {"frames": frames, "bad_frames": bad, "rawx_epochs": rawx, "event_marks": tm2}
+    meta = {"frames": frames, "bad_frames": int(bad), "rawx_epochs": rawx, "event_marks": tm2}
     if first is not None:
         meta.update(first_gps_time_s=first, last_gps_time_s=last)
     return meta
@@ -553,6 +571,8 @@ def _image_meta(path: Path, head: bytes) -> dict:
     else:
         fmt = "tiff"
         le = head[:2] == b"II"
+        if len(head) < 8:   # the byte order and magic number, and no offset of a first directory
+            raise UnrecognisedFile(f"TIFF file of {len(head)} bytes: cut off inside its 8-byte header", kind="image")
         off = struct.unpack_from("<I" if le else ">I", head, 4)[0]
         if off < 8 or off >= size:
             raise UnrecognisedFile("TIFF header points outside the file (truncated?)")

@@ -121,9 +121,10 @@ def parse_content_range(header: str | None, content_length: int | None) -> tuple
     """(start, end exclusive, total) from 'bytes START-END/TOTAL' (END inclusive, TOTAL may be '*')."""
     if not header:
         raise Unprocessable("Content-Range header required: bytes START-END/SIZE")
-    m = re.fullmatch(r"\s*bytes\s+(\d+)-(\d+)/(\d+|\*)\s*", header)
+    m = re.fullmatch(r"\s*bytes\s+(\d{1,18})-(\d{1,18})/(\d{1,18}|\*)\s*", header)
     if not m:
-        raise Unprocessable(f"Content-Range {header!r} malformed; expected 'bytes START-END/SIZE'")
+        raise Unprocessable(f"Content-Range {header[:80]!r} malformed; expected 'bytes START-END/SIZE' "
+                            "(positions of at most 18 digits)")
     start, end = int(m.group(1)), int(m.group(2)) + 1
     total = None if m.group(3) == "*" else int(m.group(3))
     if end <= start:
@@ -398,27 +399,31 @@ def _fail(ctx: Ctx, upload_id: str, reason: str) -> None:
     ctx.db.commit()
 
 
-def _assemble(ctx: Ctx, up: Upload, dest: Path) -> str:
-    chunks = list(ctx.db.scalars(select(UploadChunk).where(UploadChunk.upload_id == up.id)
-                                 .order_by(UploadChunk.offset)))
+def _assemble(ctx: Ctx, up: Upload, chunks: list[tuple[int, int, str]], dest: Path) -> str:
     h = hashlib.sha256()
     pos = 0
     with open(dest, "wb") as out:
-        for c in chunks:
-            if c.offset != pos:
+        for offset, length, key in chunks:
+            if offset != pos:
                 raise Refused(f"stored parts do not join at byte {pos}; upload the file again")
-            for block in ctx.storage.iter_bytes(c.key):
+            for block in ctx.storage.iter_bytes(key):
                 h.update(block)
                 out.write(block)
-            pos += c.length
+            pos += length
     if pos != up.size:
         raise Refused(f"stored parts hold {pos} bytes, not the declared {up.size}; upload the file again")
     return h.hexdigest()
 
 
 def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
+    """Read what is needed, end the transaction, do the slow part (join the parts, hash, recognise,
+    extract, store the blobs) holding no database lock, then write the rows in one short transaction:
+    on SQLite a write transaction blocks every other writer for as long as it is open."""
+    chunks = [(c.offset, c.length, c.key) for c in ctx.db.scalars(
+        select(UploadChunk).where(UploadChunk.upload_id == up.id).order_by(UploadChunk.offset))]
+    ctx.db.commit()      # nothing written since the claim: this only ends the transaction
     whole = tmp / up.filename
-    got = _assemble(ctx, up, whole)
+    got = _assemble(ctx, up, chunks, whole)
     if got != up.sha256:
         raise Refused(f"SHA-256 mismatch: declared {up.sha256}, received data has {got} (corrupted in transit or "
                       "wrong checksum); upload the file again")
@@ -455,12 +460,13 @@ def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
             flight = flight_name(up.folder, up.filename)
         path, role = _place(rec.kind, up.filename, up.role, up.kind, flight)
         placed = [Placed(path, rec.kind, role, rec.meta, whole)]
-    # content-addressed blobs first (harmless if the transaction below fails), then the rows at once
+    # content-addressed blobs first, outside any transaction (harmless if the transaction below fails),
+    # then the rows at once
+    stored = [ctx.storage.put_blob(p.local) for p in placed]
     survey = ctx.db.get(Survey, up.survey_id)
     attached = []
     kinds = set()
-    for p in placed:
-        sha, size = ctx.storage.put_blob(p.local)
+    for p, (sha, size) in zip(placed, stored):
         row = ctx.db.scalar(select(SurveyFile).where(SurveyFile.survey_id == up.survey_id, SurveyFile.path == p.path))
         replaced = row is not None and row.sha256 != sha
         if row is None:

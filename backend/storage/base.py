@@ -81,5 +81,14 @@ class Storage(ABC):
             self.put_bytes(key, data)
         return sha, len(data)
 
-    def check(self) -> None:
-        """Raise when the store cannot be reached (health check)."""
+    def check(self, min_free_bytes: int = 0) -> None:
+        """Raise when the store cannot be reached or, where it can tell, has less than ``min_free_bytes``
+        free (health check: StorageFull)."""
+
+    def free_bytes(self) -> int | None:
+        """Bytes a new object may still take, where the store can tell (local disk), else None."""
+        return None
+
+
+class StorageFull(OSError):
+    """Less room in the store than the operator's minimum (GEOREF_MIN_FREE_STORAGE_BYTES)."""

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
 from pathlib import Path
 from typing import Iterator
 
-from .base import HASH_CHUNK, Storage
+from .base import HASH_CHUNK, Storage, StorageFull
 
 
 class LocalStorage(Storage):
@@ -105,6 +106,15 @@ class LocalStorage(Storage):
         p = self._path(key)
         return p if p.is_file() else None
 
-    def check(self) -> None:
+    def free_bytes(self) -> int | None:
+        """Space an unprivileged writer may still use (statvfs f_bavail: the blocks reserved for root are
+        not counted, so that a server running as root does not report room it should not take)."""
+        st = os.statvfs(self.root)
+        return st.f_bavail * st.f_frsize
+
+    def check(self, min_free_bytes: int = 0) -> None:
         if not os.access(self.root, os.W_OK):
             raise OSError(f"storage folder {self.root} is not writable")
+        free = self.free_bytes()
+        if free is not None and free < max(min_free_bytes, 1):
+            raise StorageFull(errno.ENOSPC, f"storage full: {free} bytes free, at least {min_free_bytes} wanted")

@@ -34,11 +34,13 @@ class S3Storage(Storage):
 
     def put_file(self, key: str, path: Path) -> None:
         self._ensure_bucket()
-        self.client.upload_file(str(path), self.bucket, key)   # multipart above 8 MB, atomic on completion
+        with _full_as_enospc(key):
+            self.client.upload_file(str(path), self.bucket, key)   # multipart above 8 MB, atomic on completion
 
     def put_bytes(self, key: str, data: bytes) -> None:
         self._ensure_bucket()
-        self.client.put_object(Bucket=self.bucket, Key=key, Body=data)
+        with _full_as_enospc(key):
+            self.client.put_object(Bucket=self.bucket, Key=key, Body=data)
 
     def _head(self, key: str):
         from botocore.exceptions import ClientError
@@ -94,3 +96,35 @@ class S3Storage(Storage):
     def check(self) -> None:
         self._bucket_checked = False
         self._ensure_bucket()
+
+
+# what S3-compatible stores answer when they have no room left (MinIO; S3 itself has no such state)
+_STORAGE_FULL_CODES = ("XMinioStorageFull", "StorageFull", "InsufficientStorage", "507")
+
+
+class _full_as_enospc:
+    """A full object store raised as OSError(ENOSPC), the same as a full local disk (API: 507)."""
+
+    def __init__(self, key: str):
+        self.key = key
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, et, exc, tb):
+        if exc is None:
+            return False
+        import errno
+
+        from botocore.exceptions import ClientError
+
+        try:
+            from boto3.exceptions import S3UploadFailedError
+        except ImportError:      # pragma: no cover
+            S3UploadFailedError = ()
+        text = str(exc)
+        code = exc.response.get("Error", {}).get("Code") if isinstance(exc, ClientError) else ""
+        if code in _STORAGE_FULL_CODES or (isinstance(exc, S3UploadFailedError)
+                                           and any(c in text for c in _STORAGE_FULL_CODES[:2])):
+            raise OSError(errno.ENOSPC, f"object store full, {self.key} not stored") from exc
+        return False

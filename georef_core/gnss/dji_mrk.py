@@ -278,15 +278,15 @@ def _parse_line(s: str) -> tuple:
     if len(tok) < 3:
         raise ValueError(f"{len(tok)} field(s), expected at least 9 (index, seconds of week, [week], N, E, V, "
                          "Lat, Lon, Ellh)")
-    if not re.fullmatch(r"[-+]?\d+", tok[0]):
-        raise ValueError(f"exposure index {tok[0]!r} is not an integer")
+    if not re.fullmatch(r"[-+]?\d{1,9}", tok[0]):      # bounded: an int64 array holds it
+        raise ValueError(f"exposure index {tok[0][:40]!r} is not an integer of at most 9 digits")
     index = int(tok[0])
     sow = _number(tok[1], "GPS seconds of week")
     if not 0.0 <= sow < SECONDS_PER_WEEK:
         raise ValueError(f"GPS seconds of week {tok[1]} is outside [0, 604800)")
-    m = re.fullmatch(r"\[(\d+)\]", tok[2])
+    m = re.fullmatch(r"\[(\d{1,5})\]", tok[2])
     if not m:
-        raise ValueError(f"GPS week field {tok[2]!r} is not of the form [week]")
+        raise ValueError(f"GPS week field {tok[2][:40]!r} is not of the form [week] (at most 5 digits)")
     week = int(m.group(1))
     values: dict[str, float] = {}
     sigma = (np.nan, np.nan, np.nan)
@@ -314,7 +314,7 @@ def _parse_line(s: str) -> tuple:
         raise ValueError(f"negative standard deviation in {sigma}")
     if "q" in values:
         q = values["q"]
-        if q != int(q):
+        if not abs(q) < 1e6 or q != int(q):
             raise ValueError(f"quality {q} is not an integer")
         quality = int(q)
     else:

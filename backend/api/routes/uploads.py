@@ -50,7 +50,7 @@ async def put_chunk(upload_id: str, ctx: CtxDep, request: Request,
                     content_range: str | None = Header(default=None),
                     content_length: int | None = Header(default=None)):
     start, end, total = uploads.parse_content_range(content_range, content_length)
-    done = await run_in_threadpool(uploads.check_chunk, ctx, upload_id, start, end, total)
+    done = await run_in_threadpool(_check_then_end_transaction, ctx, upload_id, start, end, total)
     if done is not None:
         # drain the body of an already-received chunk (idempotent retry)
         async for _ in request.stream():
@@ -77,6 +77,15 @@ async def put_chunk(upload_id: str, ctx: CtxDep, request: Request,
         except FileNotFoundError:
             pass
     return json_response(request, _out(ctx, up))
+
+
+def _check_then_end_transaction(ctx, upload_id: str, start: int, end: int, total: int | None):
+    """The chunk is checked in a transaction that ends before the body is read and stored: no database
+    lock is held while bytes are copied (store_chunk advances received_bytes in a short one of its own,
+    conditional on the upload still being where the check saw it)."""
+    done = uploads.check_chunk(ctx, upload_id, start, end, total)
+    ctx.db.commit()
+    return done
 
 
 @router.post("/uploads/{upload_id}/complete", response_model=UploadOut,
