@@ -34,8 +34,7 @@ def _rmse(s, storage: Storage, run_id: str) -> float | None:
                                                storage.read_bytes(blob_key(oc.sha256)).decode() if oc else None)
     except (OSError, ValueError):
         return None
-    st = result_files.residual_stats([p for p in res["points"] if p.get("d_m") is not None])
-    return (st.get("d_m") or {}).get("rmse")
+    return result_files.rmse_3d_m(res)
 
 
 def _volumes(s, run_id: str) -> dict[str, float | None]:

@@ -157,14 +157,15 @@ def build_report(run_dir: Path, out_pdf: Path, meta: dict) -> dict:
             rows.append([q.get("name"), q.get("role", ""), _fmt(q.get("dx_m")), _fmt(q.get("dy_m")), _fmt(q.get("dz_m")),
                          _fmt(q.get("d_m"))])
         table(rows)
-        st = result_files.residual_stats([q for q in res["points"] if q.get("dx_m") is not None])
+        st = res["stats"]      # the core's statistics (residual_table.residual_statistics), as the UI shows them
         if st.get("n"):
             rows = [["", "dE", "dN", "dh", "|d|"]]
-            for stat in ("mean", "std", "rmse", "max_abs"):
-                rows.append([stat] + [_fmt((st.get(c) or {}).get(stat)) for c in ("dx_m", "dy_m", "dz_m", "d_m")])
+            for stat, label in (("mean_m", "mean"), ("std_m", "std"), ("rmse_m", "rmse"), ("max_abs_m", "max abs")):
+                rows.append([label] + [_fmt((st.get(c) or {}).get(stat)) for c in ("dx", "dy", "dz")]
+                            + [_fmt((st.get("3d") or {}).get("max_m" if stat == "max_abs_m" else stat))])
             story.append(Spacer(1, 2 * mm))
             table(rows)
-            rmse_d = (st.get("d_m") or {}).get("rmse")
+            rmse_d = result_files.rmse_3d_m(res)
     else:
         p("No residual table in this run (georeferencing step not run or unavailable, or no check point).")
     prev = meta.get("previous") or {}

@@ -60,64 +60,38 @@ def parse_csv(text: str) -> list[dict]:
     return out
 
 
-def _pick(d: dict, *names):
-    for n in names:
-        if n in d and d[n] is not None:
-            return d[n]
-    return None
-
-
 def normalise_residuals(json_text: str | None, csv_text: str | None) -> dict:
-    """{"points": [{name, role, dx_m, dy_m, dz_m, d_m, ...}], "stats": {...}} from residuals.json/.csv."""
+    """{"points": [{name, role, dx_m, dy_m, dz_m, d_m, ...}], "stats": {...}, "raw": ...} from the georef step's
+    residuals.json (its declared shape: ResidualTable.to_dict, "points" and "statistics"), else its
+    residuals.csv. The statistics are the core's (residual_table.residual_statistics), read from the file or,
+    for a table that has only its CSV, computed by that same function: one definition for the API, the PDF,
+    run comparison and the browser."""
+    from georef_core.adjustment.residual_table import residual_statistics
+
     raw = json.loads(json_text) if json_text else None
-    rows = None
-    stats: dict = {}
-    if isinstance(raw, dict):
-        for key in ("points", "check_points", "residuals", "rows", "table"):
-            if isinstance(raw.get(key), list):
-                rows = raw[key]
-                break
-        for key in ("stats", "summary", "statistics"):
-            if isinstance(raw.get(key), dict):
-                stats = raw[key]
-                break
-    elif isinstance(raw, list):
-        rows = raw
+    rows = raw.get("points") if isinstance(raw, dict) else None
+    stats = raw.get("statistics") if isinstance(raw, dict) else None
     if rows is None and csv_text:
-        rows = parse_csv(csv_text)
+        # the core's CSV ends with its statistics rows (mean, std, rmse: no role): the points are the others
+        rows = [r for r in parse_csv(csv_text)
+                if r.get("role") or str(r.get("point", r.get("name", ""))) not in ("mean", "std", "rmse")]
     points = []
     for r in rows or []:
         if not isinstance(r, dict):
             continue
-        dx, dy, dz = _pick(r, "dx_m", "dx", "de_m", "dE_m"), _pick(r, "dy_m", "dy", "dn_m", "dN_m"), \
-            _pick(r, "dz_m", "dz", "dh_m", "du_m")
-        d = _pick(r, "d_m", "d3_m", "d3d_m", "norm_m", "abs_m", "|d|_m", "d")
+        dx, dy, dz = _f(r.get("dx_m")), _f(r.get("dy_m")), _f(r.get("dz_m"))
+        d = _f(r.get("d3_m"))
         if d is None and None not in (dx, dy, dz):
             d = math.sqrt(dx * dx + dy * dy + dz * dz)
-        points.append({**r, "name": _pick(r, "name", "point", "id"), "dx_m": dx, "dy_m": dy, "dz_m": dz, "d_m": d})
-    if not stats and points:
-        stats = residual_stats(points)
+        points.append({**r, "name": r.get("name", r.get("point")), "dx_m": dx, "dy_m": dy, "dz_m": dz, "d_m": d})
+    if not isinstance(stats, dict):
+        stats = residual_statistics([(p["dx_m"], p["dy_m"], p["dz_m"]) for p in points
+                                     if None not in (p["dx_m"], p["dy_m"], p["dz_m"])])
     return {"points": points, "stats": stats, "raw": raw}
 
 
-def residual_stats(points: list[dict]) -> dict:
-    out = {"n": len(points)}
-    for c in ("dx_m", "dy_m", "dz_m", "d_m"):
-        v = [p[c] for p in points if p.get(c) is not None]
-        if v:
-            n = len(v)
-            mean = sum(v) / n
-            out[c] = {"mean": mean, "std": math.sqrt(sum((x - mean) ** 2 for x in v) / n),
-                      "rmse": math.sqrt(sum(x * x for x in v) / n), "max_abs": max(abs(x) for x in v)}
-    return out
+def rmse_3d_m(residuals: dict) -> float | None:
+    """The 3D RMSE of a normalised residual table's statistics (None without points)."""
+    return _f(((residuals.get("stats") or {}).get("3d") or {}).get("rmse_m"))
 
 
-def rmse_of(residuals: dict, component: str = "d_m") -> float | None:
-    st = residuals.get("stats") or {}
-    c = st.get(component)
-    if isinstance(c, dict):
-        return _f(c.get("rmse"))
-    for key in (f"rmse_{component}", f"{component}_rmse", "rmse_3d_m", "rmse_m"):
-        if key in st:
-            return _f(st[key])
-    return None

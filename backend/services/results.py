@@ -413,16 +413,12 @@ def survey_of(ctx: Ctx, run: Run) -> Survey:
     return ctx.db.get(Survey, run.survey_id)
 
 
-def check_rmse(points: list[dict]) -> dict | None:
-    import math
-
-    pts = [p for p in points if None not in (p.get("dx_m"), p.get("dy_m"), p.get("dz_m"))]
-    if not pts:
+def check_rmse(stats: dict) -> dict | None:
+    """Horizontal, vertical and 3D RMSE of a residual table, from the core's statistics (one definition)."""
+    if not stats or not stats.get("n"):
         return None
-    n = len(pts)
-    h = math.sqrt(sum(p["dx_m"] ** 2 + p["dy_m"] ** 2 for p in pts) / n)
-    v = math.sqrt(sum(p["dz_m"] ** 2 for p in pts) / n)
-    return {"horizontal": h, "vertical": v, "3d": math.sqrt(h * h + v * v), "n": n}
+    return {"horizontal": stats["horizontal"]["rmse_m"], "vertical": stats["dz"]["rmse_m"],
+            "3d": stats["3d"]["rmse_m"], "n": stats["n"]}
 
 
 def site_summary(ctx: Ctx, site_id: str) -> dict:
@@ -454,7 +450,7 @@ def site_summary(ctx: Ctx, site_id: str) -> dict:
     n, res_id, vol_id = row[0], row[1], row[2]
     rmse = None
     if res_id is not None:
-        rmse = check_rmse(residuals_data(ctx, ctx.db.get(Run, res_id))["points"])
+        rmse = check_rmse(residuals_data(ctx, ctx.db.get(Run, res_id))["stats"])
     net = None
     if vol_id is not None:
         vols = [v.volume_m3 for v in volumes_rows(ctx.db, vol_id) if v.volume_m3 is not None]

@@ -1,7 +1,9 @@
 import { describe, expect, it } from "vitest";
 import {
-  type ResidualPoint, DEFAULT_TOLERANCE, classify, d3Of, formatLength, pointClass, residualStats, residualsCsv, sortResiduals,
+  type ResidualPoint, type ServedStats, DEFAULT_TOLERANCE, classify, d3Of, formatLength, pointClass, residualsCsv, sortResiduals,
+  statsFromServed,
 } from "../src/lib/residuals";
+import served from "./fixtures/residuals_core.json";
 
 const rows: ResidualPoint[] = [
   { name: "T10", role: "check", dx_m: 0.012, dy_m: -0.004, dz_m: 0.021 },
@@ -10,18 +12,17 @@ const rows: ResidualPoint[] = [
 ];
 
 describe("residual statistics", () => {
-  it("computes mean, sample std (n-1) and RMSE per axis, like georef_core's table", () => {
-    const s = residualStats(rows)!;
-    expect(s.n).toBe(3);
-    expect(s.dx.mean).toBeCloseTo(0.003, 12);
-    // sample std of (0.012, -0.006, 0.003): deviations 0.009, -0.009, 0 -> sqrt(0.000162 / 2) = 0.009
-    expect(s.dx.std!).toBeCloseTo(0.009, 12);
-    expect(s.dz.rmse).toBeCloseTo(Math.sqrt((0.021 ** 2 + 0.035 ** 2 + 0.007 ** 2) / 3), 12);
-    expect(s.dz.maxAbs).toBeCloseTo(0.035, 12);
-    expect(s.horizontal.rmse).toBeCloseTo(Math.sqrt((0.012 ** 2 + 0.004 ** 2 + 0.006 ** 2 + 0.008 ** 2 + 0.003 ** 2 + 0.001 ** 2) / 3), 12);
-    expect(s.d3.max).toBeCloseTo(d3Of(rows[1]), 12);
-    expect(residualStats([])).toBeNull();
-    expect(residualStats([rows[0]])!.dx.std).toBeNull();
+  it("shows the statistics the georef step wrote, not its own (one definition: residual_table.residual_statistics)", () => {
+    // residuals.json of a run as the core writes it (frontend/tests/fixtures/residuals_core.json, made and kept
+    // equal to the core's output by tests/adjustment/test_residual_statistics.py)
+    const s = statsFromServed(served.statistics as ServedStats)!;
+    expect(s.n).toBe(served.points.length);
+    expect(s.dx.std).toBe(served.statistics.dx.std_m);
+    expect(s.dz.rmse).toBe(served.statistics.dz.rmse_m);
+    expect(s.d3.std).toBe(served.statistics["3d"].std_m);
+    expect(s.horizontal.rmse).toBe(served.statistics.horizontal.rmse_m);
+    expect(statsFromServed({ n: 0 })).toBeNull();
+    expect(statsFromServed(undefined)).toBeNull();
   });
 
   it("formats lengths in cm/mm/m without negative zero", () => {
@@ -48,10 +49,13 @@ describe("residual statistics", () => {
     expect(sortResiduals(rows, "d3_m", false)[0].name).toBe("T1");
   });
 
-  it("writes CSV with the statistics rows", () => {
-    const csv = residualsCsv(rows).trim().split("\n");
+  it("writes CSV with the served statistics rows", () => {
+    const s = statsFromServed(served.statistics as ServedStats)!;
+    const pts = served.points.map((p) => ({ ...p, dx_m: p.dx_m, dy_m: p.dy_m, dz_m: p.dz_m })) as ResidualPoint[];
+    const csv = residualsCsv(pts, s).trim().split("\n");
     expect(csv[0]).toBe("point,role,dx_m,dy_m,dz_m,d3_m");
-    expect(csv).toHaveLength(1 + 3 + 3);
-    expect(csv[4].startsWith("mean,,0.0030,")).toBe(true);
+    expect(csv).toHaveLength(1 + pts.length + 3);
+    expect(csv[pts.length + 1]).toBe(["mean", "", s.dx.mean.toFixed(4), s.dy.mean.toFixed(4), s.dz.mean.toFixed(4), s.d3.mean.toFixed(4)].join(","));
+    expect(residualsCsv(pts, null).trim().split("\n")).toHaveLength(1 + pts.length);
   });
 });

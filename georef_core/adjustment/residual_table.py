@@ -31,19 +31,7 @@ class ResidualTable:
     rows: list[ResidualRow] = field(default_factory=list)
 
     def stats(self) -> dict:
-        if not self.rows:
-            return {"n": 0}
-        d = np.array([[r.dx_m, r.dy_m, r.dz_m] for r in self.rows])
-        n = len(d)
-        h = np.hypot(d[:, 0], d[:, 1])
-        d3 = np.linalg.norm(d, axis=1)
-        out = {"n": n}
-        for k, name in enumerate(("dx", "dy", "dz")):
-            out[name] = {"mean_m": float(d[:, k].mean()), "std_m": float(d[:, k].std(ddof=1)) if n > 1 else None,
-                         "rmse_m": float(np.sqrt(np.mean(d[:, k] ** 2))), "max_abs_m": float(np.abs(d[:, k]).max())}
-        out["horizontal"] = {"rmse_m": float(np.sqrt(np.mean(h ** 2))), "max_m": float(h.max())}
-        out["3d"] = {"mean_m": float(d3.mean()), "rmse_m": float(np.sqrt(np.mean(d3 ** 2))), "max_m": float(d3.max())}
-        return out
+        return residual_statistics([(r.dx_m, r.dy_m, r.dz_m) for r in self.rows])
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "crs": self.crs, "convention": "d = estimated - surveyed (metres, project CRS axes)",
@@ -79,3 +67,24 @@ class ResidualTable:
                 lines.append(f"{lab:<33} " + " ".join("     n/a" if x is None else f"{x:8.4f}" for x in v)
                              + ("" if d3 is None else f" {d3:8.4f}"))
         return "\n".join(lines)
+
+
+def residual_statistics(d_m) -> dict:
+    """The statistics of a residual table, the one definition every layer shows (the API, the PDF and the
+    browser read them from residuals.json): n; per axis dx, dy, dz the mean, the sample standard deviation
+    (n - 1; None for one point), the RMSE and the largest absolute value; the horizontal RMSE and maximum;
+    for |d| (3D) the mean, sample standard deviation, RMSE and maximum. ``d_m``: (n, 3) dx, dy, dz in metres."""
+    d = np.asarray(d_m, dtype=float).reshape(-1, 3)
+    n = len(d)
+    if n == 0:
+        return {"n": 0}
+    h = np.hypot(d[:, 0], d[:, 1])
+    d3 = np.linalg.norm(d, axis=1)
+    out: dict = {"n": n}
+    for k, name in enumerate(("dx", "dy", "dz")):
+        out[name] = {"mean_m": float(d[:, k].mean()), "std_m": float(d[:, k].std(ddof=1)) if n > 1 else None,
+                     "rmse_m": float(np.sqrt(np.mean(d[:, k] ** 2))), "max_abs_m": float(np.abs(d[:, k]).max())}
+    out["horizontal"] = {"rmse_m": float(np.sqrt(np.mean(h ** 2))), "max_m": float(h.max())}
+    out["3d"] = {"mean_m": float(d3.mean()), "std_m": float(d3.std(ddof=1)) if n > 1 else None,
+                 "rmse_m": float(np.sqrt(np.mean(d3 ** 2))), "max_m": float(d3.max())}
+    return out

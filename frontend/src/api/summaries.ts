@@ -3,7 +3,7 @@
  * (latest run, its check-point residuals and its stockpile volumes).
  */
 
-import { residualStats, type ResidualStats } from "../lib/residuals";
+import { statsFromServed, type ResidualStats } from "../lib/residuals";
 import { api, mapLimit } from "./client";
 import type { Page, ResidualsResponse, Run, RunVolume, Site, Survey } from "./types";
 
@@ -48,7 +48,7 @@ export async function surveySummary(survey: Survey, signal?: AbortSignal): Promi
       api.maybe<{ stockpiles: RunVolume[] }>(`/runs/${lastGoodRun.id}/results/volumes`, { signal }),
     ]);
     const rows = checkRows(res);
-    stats = residualStats(rows);
+    stats = statsFromServed(res?.stats);
     checkPoints = rows.length;
     volumes = vol?.stockpiles ?? null;
   }

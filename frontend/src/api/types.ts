@@ -203,7 +203,7 @@ export interface ResidualsResponse {
   run_id: string;
   units: string;
   points: ResidualRow[];
-  stats: Record<string, any>;
+  stats: import("../lib/residuals").ServedStats;
   source: any;
 }
 

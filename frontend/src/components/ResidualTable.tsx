@@ -1,8 +1,9 @@
-/** The check-point residual table: sortable, coloured against the tolerance, statistics below. */
+/** The check-point residual table: sortable, coloured against the tolerance, the statistics the georef step
+ * wrote below (the browser does not compute its own). */
 
 import { useState } from "preact/hooks";
 import {
-  type ResidualPoint, type SortKey, type Tolerance, type Unit, classify, d3Of, formatLength, pointClass, residualStats, sortResiduals,
+  type ResidualPoint, type SortKey, type Tolerance, type Unit, type ResidualStats, classify, d3Of, formatLength, pointClass, sortResiduals,
 } from "../lib/residuals";
 
 const COLS: [SortKey, string][] = [
@@ -17,10 +18,10 @@ const COLS: [SortKey, string][] = [
 
 const CLASS_WORD = { ok: "within tolerance", warn: "up to 1.5 × tolerance", bad: "beyond tolerance" };
 
-export function ResidualTable({ rows, tolerance, unit, caption }: { rows: ResidualPoint[]; tolerance: Tolerance; unit: Unit; caption: string }) {
+export function ResidualTable({ rows, stats, tolerance, unit, caption }: { rows: ResidualPoint[]; stats?: ResidualStats | null; tolerance: Tolerance; unit: Unit; caption: string }) {
   const [sort, setSort] = useState<{ key: SortKey; desc: boolean }>({ key: "name", desc: false });
   const sorted = sortResiduals(rows, sort.key, sort.desc);
-  const st = residualStats(rows);
+  const st = stats ?? null;
   const hasImages = rows.some((r) => r.n_images !== undefined);
   const cols = COLS.filter(([k]) => k !== "n_images" || hasImages);
   const cell = (v: number, tol: number, signed = true) => {

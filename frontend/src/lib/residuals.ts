@@ -37,28 +37,29 @@ export function d3Of(p: ResidualPoint): number {
   return Math.hypot(p.dx_m, p.dy_m, p.dz_m);
 }
 
-function axis(v: number[]): AxisStats {
-  const n = v.length;
-  const mean = v.reduce((a, b) => a + b, 0) / n;
-  const std = n > 1 ? Math.sqrt(v.reduce((a, b) => a + (b - mean) ** 2, 0) / (n - 1)) : null;
-  const rmse = Math.sqrt(v.reduce((a, b) => a + b * b, 0) / n);
-  const maxAbs = v.reduce((a, b) => Math.max(a, Math.abs(b)), 0);
-  return { mean, std, rmse, maxAbs };
+/** The statistics as the georef step wrote them in residuals.json and the API serves them ("stats": the
+ * one definition, georef_core.adjustment.residual_table.residual_statistics: mean, sample std (n - 1), RMSE,
+ * max per axis; horizontal; |d|). The browser shows them; it does not compute its own. */
+export interface ServedAxis { mean_m: number; std_m: number | null; rmse_m: number; max_abs_m: number }
+export interface ServedStats {
+  n: number;
+  dx?: ServedAxis;
+  dy?: ServedAxis;
+  dz?: ServedAxis;
+  horizontal?: { rmse_m: number; max_m: number };
+  "3d"?: { mean_m: number; std_m: number | null; rmse_m: number; max_m: number };
 }
 
-/** Statistics of the rows (null when there are none). Same definitions as georef_core's residual table. */
-export function residualStats(rows: ResidualPoint[]): ResidualStats | null {
-  if (!rows.length) return null;
-  const dx = axis(rows.map((r) => r.dx_m));
-  const dy = axis(rows.map((r) => r.dy_m));
-  const dz = axis(rows.map((r) => r.dz_m));
-  const h = rows.map((r) => Math.hypot(r.dx_m, r.dy_m));
-  const d = rows.map(d3Of);
-  const d3a = axis(d);
+const axisOf = (a: ServedAxis): AxisStats => ({ mean: a.mean_m, std: a.std_m, rmse: a.rmse_m, maxAbs: a.max_abs_m });
+
+/** The served statistics in the shape the views use (null when the table has no point). */
+export function statsFromServed(s: ServedStats | null | undefined): ResidualStats | null {
+  if (!s || !s.n || !s.dx || !s.dy || !s.dz || !s.horizontal || !s["3d"]) return null;
+  const d3 = s["3d"];
   return {
-    n: rows.length, dx, dy, dz,
-    horizontal: { rmse: Math.sqrt(h.reduce((a, b) => a + b * b, 0) / h.length), max: Math.max(...h) },
-    d3: { mean: d3a.mean, std: d3a.std, rmse: d3a.rmse, max: d3a.maxAbs },
+    n: s.n, dx: axisOf(s.dx), dy: axisOf(s.dy), dz: axisOf(s.dz),
+    horizontal: { rmse: s.horizontal.rmse_m, max: s.horizontal.max_m },
+    d3: { mean: d3.mean_m, std: d3.std_m, rmse: d3.rmse_m, max: d3.max_m },
   };
 }
 
@@ -120,8 +121,7 @@ export function sortResiduals(rows: ResidualPoint[], key: SortKey, descending: b
 }
 
 /** A residual table as CSV text (what the browser offers to save), statistics rows after the points. */
-export function residualsCsv(rows: ResidualPoint[]): string {
-  const st = residualStats(rows);
+export function residualsCsv(rows: ResidualPoint[], st: ResidualStats | null): string {
   const f = (v: number | null | undefined) => (v === null || v === undefined ? "" : v.toFixed(4));
   const lines = ["point,role,dx_m,dy_m,dz_m,d3_m"];
   for (const r of rows) lines.push([r.name, r.role, f(r.dx_m), f(r.dy_m), f(r.dz_m), f(r.d3_m ?? d3Of(r))].join(","));

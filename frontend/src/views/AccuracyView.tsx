@@ -13,7 +13,7 @@ import { ResidualMap } from "../components/ResidualMap";
 import { ResidualTable } from "../components/ResidualTable";
 import { ErrorBox, Figure, Loading, Note } from "../components/ui";
 import { useLoad, useStored } from "../hooks";
-import { DEFAULT_TOLERANCE, type Tolerance, type Unit, formatLength, residualStats, residualsCsv } from "../lib/residuals";
+import { DEFAULT_TOLERANCE, type Tolerance, type Unit, formatLength, residualsCsv, statsFromServed } from "../lib/residuals";
 import { showRun } from "./startRun";
 import type { SurveyContext } from "./SurveyView";
 
@@ -38,10 +38,11 @@ export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const all = residualRows(res.data ?? null);
   const checkNames = new Set(checks.map((r) => r.name + "|" + r.role));
   const others = all.filter((r) => !checkNames.has(r.name + "|" + r.role));
-  const st = residualStats(checks);
+  // the statistics the georef step wrote (one definition for the API, the PDF and this view)
+  const st = statsFromServed(res.data?.stats);
 
   const downloadCsv = () => {
-    const blob = new Blob([residualsCsv(checks)], { type: "text/csv" });
+    const blob = new Blob([residualsCsv(checks, st)], { type: "text/csv" });
     const a = document.createElement("a");
     a.href = URL.createObjectURL(blob);
     a.download = `${ctx.survey.name.replace(/[^\w.-]+/g, "_")}_run${run.number}_check_residuals.csv`;
@@ -78,7 +79,7 @@ export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
         ) : null}
         {checks.length ? (
           <>
-            <ResidualTable rows={checks} tolerance={tol} unit={unit} caption={`Check-point residuals, run ${run.number}`} />
+            <ResidualTable rows={checks} stats={st} tolerance={tol} unit={unit} caption={`Check-point residuals, run ${run.number}`} />
             <div class="actions">
               <button type="button" class="link" onClick={downloadCsv}>Save this table as CSV</button>
               <a class="link" href={`/api/v1/runs/${run.id}/results/residuals?format=geojson`} download>GeoJSON</a>
