@@ -22,7 +22,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from georef_core.gnss.judged_comparison import positions_on_epochs  # noqa: E402
+from tests.gnss.judged_comparison import positions_on_epochs  # noqa: E402
 from georef_core.gnss.ppk import solve_files  # noqa: E402
 from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
 from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402

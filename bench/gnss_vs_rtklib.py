@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from georef_core.gnss.input_files import load_navigation, load_observations  # noqa: E402
-from georef_core.gnss.judged_comparison import judge_fixes  # noqa: E402
+from tests.gnss.judged_comparison import judge_fixes  # noqa: E402
 from georef_core.gnss.ppk import prepare, solve_files  # noqa: E402
 from georef_core.gnss.rtk_options import read_rtklib_conf  # noqa: E402
 from georef_core.gnss.solution_io import read_pos, write_pos  # noqa: E402

@@ -598,7 +598,7 @@ def test_judged_comparison_counts_the_wrong_fix_as_a_failure_whichever_solution_
     whichever side of the comparison they are on; the judged comparison then has no epoch beyond 5 cm.
     Where the check alone is not decisive at the start of the wrong stretch, the refutation carries along
     the wrong solution's chain of consistent fixes."""
-    from georef_core.gnss.judged_comparison import judge_fixes
+    from tests.gnss.judged_comparison import judge_fixes
 
     nav, sv, _tr, _sol = drone_case
     opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))
@@ -694,7 +694,7 @@ def test_judged_comparison_takes_the_reverse_passes_as_witnesses_where_the_carri
     is on; nothing is refuted when its own reverse pass sides with it, or is not fixed there."""
     import dataclasses
 
-    from georef_core.gnss.judged_comparison import judge_fixes
+    from tests.gnss.judged_comparison import judge_fixes
 
     nav, sv, _tr, _sol = drone_case
     opts = RtkOptions(base_position_ecef_m=tuple(sv.base_position_ecef_m))

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic, geodetic_to_ecef_m
-from georef_core.gnss.judged_comparison import judge_fixes, positions_on_epochs
+from tests.gnss.judged_comparison import judge_fixes, positions_on_epochs
 from georef_core.gnss.ppk import solve_files
 from georef_core.gnss.rtk_options import read_rtklib_conf
-from georef_core.gnss.solution_compare import compare_pos, fixed_position_at
+from tests.gnss.solution_compare import compare_pos, fixed_position_at
 from georef_core.gnss.solution_io import read_pos, write_pos
 
 from .rtklib_cases import reference_cases, reverse_passes, reversed_conf, run_demo5, shared_gnss_dir

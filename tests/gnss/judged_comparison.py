@@ -39,12 +39,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .frames import geodetic_to_ecef_m
-from .phase_consistency import JUMP_THRESHOLD_M, anchored_rms_m, epoch_pair_rms_m
-from .rtk_filter import PreparedData
-from .rtk_options import RtkOptions
-from .solution_compare import Comparison, compare_pos, nearest_epochs
-from .solution_io import PosFile
+from georef_core.gnss.frames import geodetic_to_ecef_m
+from georef_core.gnss.phase_consistency import JUMP_THRESHOLD_M, anchored_rms_m, epoch_pair_rms_m
+from georef_core.gnss.rtk_filter import PreparedData
+from georef_core.gnss.rtk_options import RtkOptions
+from tests.gnss.solution_compare import Comparison, compare_pos, nearest_epochs
+from georef_core.gnss.solution_io import PosFile
 
 APART_M = 0.05              # two fixes farther apart than this cannot both be right
 ANCHOR_AGREEMENT_M = 0.01   # epochs both fix within this of each other anchor the carrier-phase check

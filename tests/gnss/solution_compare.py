@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import ecef_to_enu_rotation, geodetic_to_ecef_m
-from .solution_io import PosFile
+from georef_core.gnss.frames import ecef_to_enu_rotation, geodetic_to_ecef_m
+from georef_core.gnss.solution_io import PosFile
 
 
 @dataclass
