@@ -37,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--known-start", help="surveyed take-off position for --mode known-start: LAT,LON,H or X,Y,Z")
     p.add_argument("--max-age", type=float, help="maximum age of base corrections, s (default 30)")
     p.add_argument("--no-base-interpolation", action="store_true", help="no interpolation: each rover epoch takes the nearest base epoch, older or newer (as RTKLIB demo5)")
+    p.add_argument("--event-edge", choices=["falling", "rising"],
+                   help="the TIM-TM2 edge of a UBX rover log that marks the exposure (default falling, as convbin; "
+                        "rising for an active-high trigger; docs/gnss.md)")
     p.add_argument("--no-reverse-witness", action="store_true",
                    help="forward/backward: do not run the other pass as a witness (fixes it contradicts are "
                         "otherwise output as float; docs/gnss.md)")
@@ -99,6 +102,8 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
         changes["max_age_s"] = args.max_age
     if args.no_base_interpolation:
         changes["base_interpolation"] = False
+    if args.event_edge:
+        changes["ubx_event_edge"] = args.event_edge
     if args.no_reverse_witness:
         changes["reverse_witness"] = False
     if args.tdcp_slips is not None:

@@ -63,9 +63,10 @@ class LoadedObservations:
     kind: str
 
 
-def load_observations(path, approx_gps_time_s: float | None = None) -> LoadedObservations:
+def load_observations(path, approx_gps_time_s: float | None = None, event_edge: str = "falling") -> LoadedObservations:
     """One receiver's observation file. ``approx_gps_time_s`` dates an RTCM 3 stream that carries no
-    week number (no ephemeris messages), e.g. a base stream dated by the rover's log."""
+    week number (no ephemeris messages), e.g. a base stream dated by the rover's log. ``event_edge``: the
+    TIM-TM2 edge of a UBX log that marks the exposure (ubx.read_ubx)."""
     kind = sniff_kind(path)
     if kind == "rinex-obs":
         from .rinex_obs import read_rinex_obs
@@ -74,7 +75,7 @@ def load_observations(path, approx_gps_time_s: float | None = None) -> LoadedObs
     if kind == "ubx":
         from .ubx import read_ubx
 
-        log = read_ubx(path)
+        log = read_ubx(path, event_edge=event_edge)
         raw = log.observations
         if len(log.event_gps_time_s) and not len(raw.event_gps_time_s):
             raw.event_gps_time_s = log.event_gps_time_s

@@ -398,7 +398,7 @@ def _as_paths(p) -> list:
     return [p] if isinstance(p, (str, bytes, os.PathLike)) else list(p)
 
 
-def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
+def load_receiver(paths, role: str, approx_gps_time_s: float | None = None, event_edge: str = "falling"):
     """One receiver's observations from one or several files (flights, hourly files), joined in time
     order, with the navigation data the files carry and notes on gaps. ``role`` names it in messages."""
     from .input_files import LoadedObservations
@@ -413,7 +413,7 @@ def load_receiver(paths, role: str, approx_gps_time_s: float | None = None):
     # and through them the step summary and the UI, not only the console
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        loaded = [load_observations(p, approx_gps_time_s) for p in paths]
+        loaded = [load_observations(p, approx_gps_time_s, event_edge) for p in paths]
     read_notes = list(dict.fromkeys(f"{role}: {w.message}" for w in caught if issubclass(w.category, UserWarning)))
     for w in caught:
         if not issubclass(w.category, UserWarning):
@@ -440,7 +440,7 @@ def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions,
     t0 = _time.perf_counter()
     if progress:
         progress("reading the files", 0, 4)
-    rover, rover_notes = load_receiver(rover_path, "rover", approx_gps_time_s)
+    rover, rover_notes = load_receiver(rover_path, "rover", approx_gps_time_s, opts.ubx_event_edge)
     first = float(rover.observations.gps_time_s[0]) if rover.observations.n_epochs else None
     base, base_notes = load_receiver(base_path, "base", first)
     window = _observation_window_gps_s(rover.observations, base.observations)

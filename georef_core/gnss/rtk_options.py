@@ -19,6 +19,7 @@ class RtkOptions:
     systems: tuple[str, ...] = ("G", "R", "E", "J", "C")
     filter_direction: str = "combined"  # forward | backward | combined
     reverse_witness: bool = True       # forward/backward: the other pass runs too and refutes contradicted fixes
+    ubx_event_edge: str = "falling"    # the TIM-TM2 edge of a UBX rover log that marks the exposure (ubx.py)
     elevation_mask_deg: float = 15.0
     snr_mask_dbhz: float = 0.0         # 0 = off
     excluded_sats: tuple[str, ...] = ()
@@ -81,6 +82,7 @@ class RtkOptions:
         choices = {
             "mode": ("kinematic", "static", "known-start", "single"),
             "filter_direction": ("forward", "backward", "combined"),
+            "ubx_event_edge": ("falling", "rising"),
             "ar_mode": ("off", "continuous", "instantaneous", "fix-and-hold"),
             "troposphere": ("saastamoinen", "hopfield", "off"),
             "ionosphere": ("broadcast", "off"),

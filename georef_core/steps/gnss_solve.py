@@ -191,6 +191,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
                 raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
     if opt.get("reverse_witness") is not None:
         kw["reverse_witness"] = opt["reverse_witness"]
+    if opt.get("event_edge") is not None:
+        kw["ubx_event_edge"] = opt["event_edge"]
     if opt.get("navsys"):
         kw["systems"] = tuple(s.strip().upper() for s in str(opt["navsys"]).split(",") if s.strip())
     if mode == "known-start":

@@ -32,6 +32,8 @@ GNSS = StepSpec(
                minimum=0.0, maximum=1.0, unit="m", advanced=True),
         Option("hold_variance", "number", 0.1, "fix-and-hold: variance of the held ambiguities", minimum=1e-6,
                maximum=100.0, unit="cycles^2", advanced=True),
+        Option("event_edge", "string", "falling", "the TIM-TM2 edge of a UBX rover log that marks the exposure",
+               choices=("falling", "rising"), advanced=True),
         Option("reverse_witness", "boolean", True, "forward/backward: the other pass refutes contradicted fixes",
                advanced=True),
         Option("base_position_ecef_m", "numbers", None, "base antenna position (default: the base file's header "

@@ -672,3 +672,27 @@ def test_ubxlog_fields_are_documented():
 
     names = {f.name for f in dataclasses.fields(UbxLog)}
     assert {"observations", "navigation", "event_gps_time_s", "warnings"} <= names
+
+
+@needs_walk
+def test_event_edge_reaches_the_solution_from_the_cli():
+    """`georef gnss solve --event-edge rising` (GNSS setting event_edge): the camera events of a UBX rover
+    are its rising TIM-TM2 edges; the default is the falling one."""
+    from georef_core.cli.gnss_commands import options_from_args, register
+    import argparse
+
+    from georef_core.gnss.input_files import load_observations
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="c"))
+    args = parser.parse_args(["gnss", "solve", "r", "b", "--out", "x.pos", "--event-edge", "rising"])
+    opts, _ = options_from_args(args)
+    assert opts.ubx_event_edge == "rising"
+    log = read_ubx(WALK / "rover-20181004-1532.ubx.gz")
+    rising = load_observations(WALK / "rover-20181004-1532.ubx.gz", event_edge=opts.ubx_event_edge).observations
+    np.testing.assert_array_equal(rising.event_gps_time_s, log.event_rising_gps_time_s)
+    falling = load_observations(WALK / "rover-20181004-1532.ubx.gz").observations
+    np.testing.assert_array_equal(falling.event_gps_time_s, log.event_falling_gps_time_s)
+    from georef_core.steps.contract import get_spec
+
+    assert get_spec("gnss").validate({"event_edge": "rising"}) == {"event_edge": "rising"}
