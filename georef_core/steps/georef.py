@@ -36,47 +36,8 @@ from ..adjustment.triangulation import find_blunders, triangulate
 from ..errors import InputFileError, ProcessingError
 from ..progress import ProgressFn
 from ..project_frame import ProjectFrame, utm_epsg_for
-
-MODES = ("joint", "gcp", "similarity")
-MODE_ALIASES = {"a": "gcp", "b": "similarity", "c": "joint"}   # Daakir et al.'s letters
-SFM_MODELS = {"radial": "RADIAL", "brown": "OPENCV", "fisheye": "OPENCV_FISHEYE"}
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
-
-
-@dataclass
-class GeorefOptions:
-    mode: str = "joint"                       # joint (c) | gcp (a) | similarity (b)
-    camera_model: str = "brown"               # radial | brown | fisheye (see adjustment/camera_model.py)
-    lever_arm_cam_m: tuple[float, float, float] | None = None  # known lever arm (needed by 'similarity')
-    estimate_lever_arm: bool | None = None    # default: True unless a lever arm is given without a sigma
-    lever_arm_sigma_m: float | None = None    # a given lever arm is a weighted prior with this sigma (else fixed)
-    estimate_delay: bool = True
-    delay_s: float = 0.0                      # a-priori / fixed delay
-    control: str | None = None                # 'all', 'none' or comma-separated names (default: roles in the file)
-    check: str | None = None                  # comma-separated names made check points
-    points_crs: str | None = None             # CRS of gcp/points.csv (default survey.json, else the gcp_list's)
-    project_epsg: int | None = None           # project CRS (default survey.json, else UTM of the site)
-    sigma_px: float = 1.0                     # a-priori tie-point measurement sigma
-    gcp_sigma_px: float = 1.0                 # a-priori sigma of the clicked target measurements
-    gcp_sigma_m: tuple[float, float] = (0.01, 0.02)  # survey sigma of control points (horizontal, vertical)
-    max_tie_points: int = 8000                # tie points in the adjustment (spatially even subset)
-    reuse: bool = True                        # reuse OUT_DIR/ppk and OUT_DIR/sfm when present
-    num_threads: int = 2
-    gnss_options: dict = field(default_factory=dict)
-    blunder_threshold_px: float = 5.0
-    refine_targets: bool = True               # sub-pixel refinement of clicked checker-target centres
-    leave_one_out: bool = True
-    # trigger times from the images' EXIF time instead of camera events: trigger UTC = EXIF time (UTC, or
-    # local with its OffsetTimeOriginal) + this offset (s), i.e. the camera clock's error negated
-    exif_time_offset_s: float | None = None
-    rolling_shutter: bool | None = None       # the camera has a rolling shutter (None: from the EXIF model)
-    readout_s: float | None = None            # its readout time, first to last row (None: estimated)
-    # a calibrated camera (e.g. from a calibration flight, see load_calibration): the 8 OpenCV intrinsics
-    # (f, cx, cy, k1, k2, k3, p1, p2, pixels) held fixed instead of self-calibrated
-    fixed_intrinsics: tuple[float, ...] | None = None
-    # a camera's factory calibration written into its photos (DJI XMP DewarpData): "prior" weights it
-    # (FACTORY_CALIBRATION_SIGMA) with the self-calibration, "fixed" holds it, "ignore" self-calibrates freely
-    factory_calibration: str = "prior"
+from .georef_options import (FACTORY_CALIBRATION_CHOICES, IMAGE_SUFFIXES, MODE_ALIASES, MODES,  # noqa: F401
+                             SFM_MODELS, GeorefOptions, georef_options_from_dict, validate_shutter_options)
 
 
 # Weights of a factory calibration used as a prior (GeorefOptions.factory_calibration = "prior"): focal
@@ -84,7 +45,6 @@ class GeorefOptions:
 # calibrated image, distortion loosely (the block determines it well). An assumption stated in
 # docs/dji.md, not a measured figure of DJI units.
 FACTORY_CALIBRATION_SIGMA = {"f_rel": 5e-4, "pp_px": 1.0, "k": 0.02, "p": 0.002}
-FACTORY_CALIBRATION_CHOICES = ("prior", "fixed", "ignore")
 
 
 def factory_calibration(image_path: Path, width_px: int, height_px: int) -> tuple[np.ndarray, str] | None:
@@ -106,40 +66,6 @@ def factory_calibration(image_path: Path, width_px: int, height_px: int) -> tupl
     f = 0.5 * (d.fx_px + d.fy_px) * k
     when = f" of {d.calibration_date}" if d.calibration_date else ""
     return np.array([f, cx, cy, d.k1, d.k2, d.k3, d.p1, d.p2]), f"DewarpData{when} in {image_path.name}"
-
-
-def validate_shutter_options(opts: GeorefOptions) -> None:
-    """A readout time is a rolling shutter's: between 0 and 0.2 s, and not with a global shutter."""
-    if opts.readout_s is None:
-        return
-    if not 0.0 < opts.readout_s <= 0.2:
-        raise ProcessingError(f"rolling-shutter readout time {1000 * opts.readout_s:g} ms: expected more than 0 and at "
-                              f"most 200 ms (small drone cameras read out in 20-60 ms)")
-    if opts.rolling_shutter is False:
-        raise ProcessingError("a readout time was given for a camera declared global-shutter")
-
-
-def georef_options_from_dict(d: dict) -> GeorefOptions:
-    """GeorefOptions from a settings dict (the platform's run settings); unknown names are an error."""
-    from dataclasses import fields
-
-    names = {f.name for f in fields(GeorefOptions)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ProcessingError(f"unknown georeferencing settings: {', '.join(unknown)} (known: {', '.join(sorted(names))})")
-    d = dict(d)
-    for key in ("lever_arm_cam_m", "fixed_intrinsics", "gcp_sigma_m"):
-        if d.get(key) is not None:
-            d[key] = tuple(float(v) for v in d[key])
-    opts = GeorefOptions(**d)
-    validate_shutter_options(opts)
-    opts.mode = MODE_ALIASES.get(opts.mode, opts.mode)
-    if opts.mode not in MODES:
-        raise ProcessingError(f"georeferencing mode {d.get('mode')!r}: one of {', '.join(MODES)}")
-    if opts.factory_calibration not in FACTORY_CALIBRATION_CHOICES:
-        raise ProcessingError(f"factory_calibration {opts.factory_calibration!r}: one of "
-                              f"{', '.join(FACTORY_CALIBRATION_CHOICES)}")
-    return opts
 
 
 def load_calibration(path) -> dict:
@@ -1083,3 +1009,8 @@ def _write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray, comment: str = "") 
     with open(path, "wb") as f:
         f.write(header.encode())
         f.write(rec.tobytes())
+
+
+def step_entry(workspace, options: dict, progress, context: dict) -> dict:
+    """The georef step as the contract runs it (specs.GEOREF)."""
+    return run_georef(workspace.survey_dir, workspace.out_dir, dict(options or {}) or None, progress)
