@@ -4,8 +4,9 @@ eq. 6, solved jointly with the tie points as the paper's conclusion proposes).
 Unknowns, all in the local ENU frame of the project (metres, radians, seconds):
 
 * per camera: attitude (``R_cam_to_enu``, updated by a small rotation on the left) and centre ``C_i``;
-* the shared intrinsics (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2, or the fisheye's f, cx, cy,
-  k1..k4; which are free is a choice);
+* the intrinsics of each camera (``camera_model``: f, cx, cy, k1, k2, k3, p1, p2, or the fisheye's f, cx,
+  cy, k1..k4; which are free is a choice): one set shared by all images, or one per camera group
+  (``camera_group``: several cameras, sizes or focal lengths in one block);
 * the lever arm ``L`` (camera frame) and the trigger delay ``dt``;
 * for a rolling-shutter camera, the readout time ``tau`` (first to last image row): row ``v`` of image i
   is exposed at ``(v / H - 0.5) tau`` from the trigger (the middle row's time), when the camera has moved
@@ -55,7 +56,7 @@ def skew(v: np.ndarray) -> np.ndarray:
 class BundleProblem:
     R_cam_to_enu: np.ndarray          # (N, 3, 3)
     centre_enu_m: np.ndarray          # (N, 3)
-    intrinsics: np.ndarray            # (8,) see camera_model
+    intrinsics: np.ndarray            # (8,) see camera_model, or (G, 8): one row per camera group
     points_enu_m: np.ndarray          # (P, 3) tie points followed by control/check points
     obs_camera: np.ndarray            # (M,) camera index of each image measurement
     obs_point: np.ndarray             # (M,) point index
@@ -74,29 +75,54 @@ class BundleProblem:
     # a-priori lever arm (e.g. tape-measured) used as a weighted observation when the lever arm is estimated
     lever_arm_prior_cam_m: np.ndarray | None = None
     lever_arm_prior_sigma_m: np.ndarray | None = None
-    # a-priori intrinsics (8,) (e.g. a DJI aircraft's per-unit factory calibration, DewarpData) used as
-    # weighted observations of the free intrinsics; sigma (8,) infinite where there is no prior
+    # a-priori intrinsics (8,) or (G, 8) (e.g. a DJI aircraft's per-unit factory calibration, DewarpData) used
+    # as weighted observations of the free intrinsics; sigma of the same shape, infinite where there is no prior
     intrinsics_prior: np.ndarray | None = None
     intrinsics_prior_sigma: np.ndarray | None = None
     fisheye: bool = False             # projection of ``intrinsics`` (see camera_model)
     # rolling shutter (module docstring): the cameras' velocities (N, 3), the image height and the readout
-    # time; None / 0: a global shutter (every row exposed at the trigger)
+    # time (each a float, or (G,) per camera group); None / 0: a global shutter (every row exposed at the
+    # trigger). Images of a global-shutter camera in a mixed block carry a zero velocity.
     camera_velocity_enu_m_s: np.ndarray | None = None
-    image_height_px: float = 0.0
-    readout_s: float = 0.0
+    image_height_px: float | np.ndarray = 0.0
+    readout_s: float | np.ndarray = 0.0
+    # several cameras: the camera group (row of ``intrinsics``) of each image (N,); None: all group 0
+    camera_group: np.ndarray | None = None
+
+    @property
+    def n_groups(self) -> int:
+        return int(np.asarray(self.intrinsics).reshape(-1, 8).shape[0])
+
+    def group_of_camera(self) -> np.ndarray:
+        return np.zeros(len(self.centre_enu_m), int) if self.camera_group is None else np.asarray(self.camera_group, int)
+
+    def group_of_obs(self) -> np.ndarray:
+        return self.group_of_camera()[self.obs_camera]
+
+    def per_obs(self, values) -> np.ndarray | float:
+        """A per-group value for each image measurement: a float stays a float; one camera's (8,)
+        intrinsics stay (8,); (G,) values become (M,), (G, 8) intrinsics (M, 8)."""
+        v = np.asarray(values, float)
+        if v.ndim == 0:
+            return float(v)
+        G = self.n_groups
+        if G == 1:
+            return float(v.reshape(-1)[0]) if v.size == 1 else v.reshape(-1)
+        grp = self.group_of_obs()
+        return v[grp] if v.shape == (G,) else v.reshape(G, -1)[grp]
 
     @property
     def rolling_shutter(self) -> bool:
-        return self.camera_velocity_enu_m_s is not None and self.image_height_px > 0
+        return self.camera_velocity_enu_m_s is not None and bool(np.all(np.asarray(self.image_height_px) > 0))
 
     def row_offset_s_per_readout(self) -> np.ndarray:
         """(M,) time of each image measurement's row from the trigger, in units of the readout time."""
-        return row_offset_per_readout(self.obs_uv_px[:, 1], self.image_height_px)
+        return row_offset_per_readout(self.obs_uv_px[:, 1], self.per_obs(self.image_height_px))
 
 
 @dataclass
 class BundleOptions:
-    free_intrinsics: np.ndarray = field(default_factory=lambda: np.ones(8, bool))
+    free_intrinsics: np.ndarray = field(default_factory=lambda: np.ones(8, bool))  # (8,) or (G, 8) per camera
     estimate_lever_arm: bool = True
     estimate_delay: bool = True
     estimate_readout: bool = False   # rolling shutter: estimate the readout time (needs camera velocities)
@@ -142,9 +168,16 @@ class BundleResult:
 
 class _Layout:
     def __init__(self, prob: BundleProblem, opt: BundleOptions):
-        self.intr_idx = np.flatnonzero(opt.free_intrinsics)
-        names = [param_names(prob.fisheye)[i] for i in self.intr_idx]
-        self.n_intr = len(self.intr_idx)
+        G = prob.n_groups
+        free = np.asarray(opt.free_intrinsics, bool)
+        self.intr_free = np.tile(free.reshape(-1, 8), (G // len(free.reshape(-1, 8)), 1)) \
+            if free.reshape(-1, 8).shape[0] != G else free.reshape(G, 8).copy()
+        # column of each (group, parameter) among the global unknowns, -1 where held (group-major order)
+        self.intr_cols = -np.ones((G, 8), int)
+        self.intr_cols[self.intr_free] = np.arange(int(self.intr_free.sum()))
+        pn = param_names(prob.fisheye)
+        names = [pn[k] if G == 1 else f"cam{g + 1}.{pn[k]}" for g, k in zip(*np.nonzero(self.intr_free))]
+        self.n_intr = len(names)
         self.lever = opt.estimate_lever_arm and len(prob.gnss_camera) > 0
         self.delay = opt.estimate_delay and len(prob.gnss_camera) > 0
         self.lever_col = len(names)
@@ -153,10 +186,15 @@ class _Layout:
         self.delay_col = len(names)
         if self.delay:
             names += ["delay"]
-        self.readout = opt.estimate_readout and prob.rolling_shutter
-        self.readout_col = len(names)
-        if self.readout:
-            names += ["readout"]
+        # the readout of each camera group whose images move (rolling-shutter groups with GNSS velocities)
+        self.readout_cols = -np.ones(G, int)
+        if opt.estimate_readout and prob.rolling_shutter:
+            moving = np.linalg.norm(np.asarray(prob.camera_velocity_enu_m_s, float), axis=1) > 0
+            for g in range(G):
+                if np.any(moving & (prob.group_of_camera() == g)):
+                    self.readout_cols[g] = len(names)
+                    names += ["readout" if G == 1 else f"cam{g + 1}.readout"]
+        self.readout = bool(np.any(self.readout_cols >= 0))
         self.names = names
         self.n_global = len(names)
         self.n_cam = len(prob.centre_enu_m)
@@ -177,12 +215,12 @@ def rolling_shutter_shift(velocity_enu_m_s: np.ndarray, v_px: np.ndarray, image_
     return np.asarray(velocity_enu_m_s, float) * (readout_s * row_offset_per_readout(v_px, image_height_px))[:, None]
 
 
-def _row_shift(prob: BundleProblem, readout_s: float) -> np.ndarray | float:
+def _row_shift(prob: BundleProblem, readout_s) -> np.ndarray | float:
     """(M, 3) displacement of each measurement's camera centre at its row's exposure (rolling shutter), or 0."""
     if not prob.rolling_shutter:
         return 0.0
     return rolling_shutter_shift(prob.camera_velocity_enu_m_s[prob.obs_camera], prob.obs_uv_px[:, 1],
-                                 prob.image_height_px, readout_s)
+                                 prob.per_obs(prob.image_height_px), prob.per_obs(readout_s))
 
 
 def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None, readout=None):
@@ -194,7 +232,7 @@ def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None, readou
     Rw2c = np.transpose(R[prob.obs_camera], (0, 2, 1))
     d = X[prob.obs_point] - C[prob.obs_camera] - _row_shift(prob, readout)
     p = np.einsum("mij,mj->mi", Rw2c, d)
-    return project_camera_points(p, intr, prob.fisheye), p, d, Rw2c
+    return project_camera_points(p, prob.per_obs(intr), prob.fisheye), p, d, Rw2c
 
 
 def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None):
@@ -286,22 +324,36 @@ class BundleAdjuster:
             return np.zeros(0)
         return (np.asarray(lever) - p.lever_arm_prior_cam_m) / np.asarray(p.lever_arm_prior_sigma_m, float)
 
-    def _intrinsics_prior_columns(self) -> tuple[np.ndarray, np.ndarray]:
-        """(columns among the global parameters, intrinsic indices) of the free intrinsics with a prior."""
-        p, lay = self.prob, self.lay
+    def _prior_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The intrinsics prior and its sigma as (G, 8) (a single (8,) prior applies to every group)."""
+        p = self.prob
         if p.intrinsics_prior is None or p.intrinsics_prior_sigma is None:
+            return None
+        G = p.n_groups
+        val = np.asarray(p.intrinsics_prior, float).reshape(-1, 8)
+        sig = np.asarray(p.intrinsics_prior_sigma, float).reshape(-1, 8)
+        return np.broadcast_to(val, (G, 8)), np.broadcast_to(sig, (G, 8))
+
+    def _intrinsics_prior_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(columns among the global parameters, flat (group * 8 + parameter) indices) of the free
+        intrinsics with a prior."""
+        pr = self._prior_arrays()
+        if pr is None:
             return np.zeros(0, int), np.zeros(0, int)
-        sig = np.asarray(p.intrinsics_prior_sigma, float)[lay.intr_idx]
-        c = np.flatnonzero(np.isfinite(sig) & (sig > 0))
-        return c, lay.intr_idx[c]
+        sig = pr[1]
+        ok = self.lay.intr_free & np.isfinite(sig) & (sig > 0)
+        flat = np.flatnonzero(ok.reshape(-1))
+        return self.lay.intr_cols.reshape(-1)[flat], flat
 
     def _intrinsics_prior_residual(self, intr) -> np.ndarray:
         cols, k = self._intrinsics_prior_columns()
         if not len(k):
             return np.zeros(0)
-        p = self.prob
-        return (np.asarray(intr, float)[k] - np.asarray(p.intrinsics_prior, float)[k]) / \
-            np.asarray(p.intrinsics_prior_sigma, float)[k]
+        val, sig = self._prior_arrays()
+        I = np.asarray(intr, float).reshape(-1)
+        if len(I) == 8 and self.prob.n_groups > 1:
+            I = np.tile(I, self.prob.n_groups)
+        return (I[k] - val.reshape(-1)[k]) / sig.reshape(-1)[k]
 
     def _cost(self, r_obs, r_g, r_c) -> float:
         return float(np.sum(self.w_obs * np.sum(r_obs ** 2, 1)) + np.sum(self.w_gnss * np.sum(r_g ** 2, 1))
@@ -323,37 +375,45 @@ class BundleAdjuster:
         r_obs = (uv - p.obs_uv_px) / sig[:, None]
         sw = np.sqrt(self.w_obs) / sig  # row scale for the Jacobian
         # d(uv)/d(p_cam) and d(uv)/d(intrinsics), central differences, vectorised over observations
+        intr_obs = p.per_obs(p.intrinsics)            # (8,) one camera, or (M, 8) each measurement's camera
         Jp = np.empty((M, 2, 3))
         h = 1e-6 * np.maximum(np.abs(pc[:, 2]), 1e-3)
         for k in range(3):
             dp = np.zeros_like(pc)
             dp[:, k] = h
-            Jp[:, :, k] = (project_camera_points(pc + dp, p.intrinsics, p.fisheye)
-                            - project_camera_points(pc - dp, p.intrinsics, p.fisheye)) / (2 * h)[:, None]
-        Ji = np.empty((M, 2, lay.n_intr))
-        for c, k in enumerate(lay.intr_idx):
-            e = np.zeros(8)
-            e[k] = _INTR_STEP[k]
-            Ji[:, :, c] = (project_camera_points(pc, p.intrinsics + e, p.fisheye)
-                           - project_camera_points(pc, p.intrinsics - e, p.fisheye)) / (2 * _INTR_STEP[k])
+            Jp[:, :, k] = (project_camera_points(pc + dp, intr_obs, p.fisheye)
+                            - project_camera_points(pc - dp, intr_obs, p.fisheye)) / (2 * h)[:, None]
         JX = np.einsum("mij,mjk->mik", Jp, Rw2c)
         Jrot = np.einsum("mij,mjk->mik", JX, skew(d))
         JX *= sw[:, None, None]
         Jrot *= sw[:, None, None]
-        Ji *= sw[:, None, None]
-        if lay.readout:  # d(uv)/d(readout) = -d(uv)/dX . V_i (v / H - 0.5)
-            Ji = np.concatenate([Ji, -np.einsum("mij,mj->mi", JX, p.camera_velocity_enu_m_s[p.obs_camera]
-                                                * p.row_offset_s_per_readout()[:, None])[:, :, None]], axis=2)
         rows_r = (np.sqrt(self.w_obs)[:, None] * r_obs).reshape(-1)
 
         # sparse assembly of the x-part (global + cameras) and the point blocks
         rows, cols, vals = [], [], []
         obs_rows = np.arange(M)[:, None] * 2 + np.arange(2)[None, :]  # (M, 2)
-        if Ji.shape[2]:  # the intrinsics' columns, and the readout's
-            icols = np.concatenate([np.arange(lay.n_intr), [lay.readout_col] if lay.readout else []]).astype(int)
-            rows.append(np.repeat(obs_rows[:, :, None], len(icols), 2).reshape(-1))
-            cols.append(np.broadcast_to(icols, (M, 2, len(icols))).reshape(-1))
-            vals.append(Ji.reshape(-1))
+        grp = p.group_of_obs()
+        for k in np.flatnonzero(lay.intr_free.any(axis=0)):   # each measurement's own camera's columns
+            col = lay.intr_cols[grp, k]
+            m = col >= 0
+            if not m.any():
+                continue
+            e = np.zeros(8)
+            e[k] = _INTR_STEP[k]
+            io = intr_obs[m] if np.ndim(intr_obs) == 2 else intr_obs
+            dk = (project_camera_points(pc[m], io + e, p.fisheye)
+                  - project_camera_points(pc[m], io - e, p.fisheye)) / (2 * _INTR_STEP[k]) * sw[m, None]
+            rows.append(obs_rows[m].reshape(-1))
+            cols.append(np.repeat(col[m], 2))
+            vals.append(dk.reshape(-1))
+        if lay.readout:  # d(uv)/d(readout) = -d(uv)/dX . V_i (v / H - 0.5), the readout of the image's camera
+            col = lay.readout_cols[grp]
+            m = col >= 0
+            dr = -np.einsum("mij,mj->mi", JX[m], p.camera_velocity_enu_m_s[p.obs_camera[m]]
+                            * p.row_offset_s_per_readout()[m, None])
+            rows.append(obs_rows[m].reshape(-1))
+            cols.append(np.repeat(col[m], 2))
+            vals.append(dr.reshape(-1))
         cam_cols = lay.cam0 + 6 * p.obs_camera
         rows.append(np.repeat(obs_rows[:, :, None], 6, 2).reshape(-1))
         cols.append((cam_cols[:, None, None] + np.arange(6)[None, None, :]).repeat(2, 1).reshape(-1))
@@ -399,7 +459,7 @@ class BundleAdjuster:
             r_all.append(ri)
             rows.append(n_rows + np.arange(len(ri)))
             cols.append(cols_i)
-            vals.append(1.0 / np.asarray(p.intrinsics_prior_sigma, float)[k_i])
+            vals.append(1.0 / self._prior_arrays()[1].reshape(-1)[k_i])
             n_rows += len(ri)
         Jx = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_rows + 3 * len(p.control_point), lay.nx))
 
@@ -448,18 +508,28 @@ class BundleAdjuster:
 
     def _apply(self, dx, dp):
         p, lay = self.prob, self.lay
-        intr = p.intrinsics.copy()
-        intr[lay.intr_idx] += dx[:lay.n_intr]
+        shape = np.shape(p.intrinsics)
+        intr = np.asarray(p.intrinsics, float).reshape(-1, 8).copy()
+        intr[lay.intr_free] += dx[:lay.n_intr]
+        intr = intr.reshape(shape)
         lever = p.lever_arm_cam_m.copy()
         if lay.lever:
             lever += dx[lay.lever_col:lay.lever_col + 3]
         delay = p.delay_s + (dx[lay.delay_col] if lay.delay else 0.0)
-        readout = p.readout_s + (dx[lay.readout_col] if lay.readout else 0.0)
+        readout = p.readout_s
+        if lay.readout:
+            if np.ndim(p.readout_s) == 0:
+                readout = float(p.readout_s) + float(dx[lay.readout_cols[0]])
+            else:
+                readout = np.asarray(p.readout_s, float).copy()
+                for g, c in enumerate(lay.readout_cols):
+                    if c >= 0:
+                        readout[g] += dx[c]
         cam = dx[lay.cam0:].reshape(-1, 6)
         R = Rotation.from_rotvec(cam[:, :3]).as_matrix() @ p.R_cam_to_enu
         C = p.centre_enu_m + cam[:, 3:]
         X = p.points_enu_m + dp.reshape(-1, 3)
-        return R, C, X, intr, lever, float(delay), float(readout)
+        return R, C, X, intr, lever, float(delay), (float(readout) if np.ndim(readout) == 0 else readout)
 
     def _commit(self, state):
         p = self.prob
@@ -578,10 +648,11 @@ class BundleAdjuster:
         gnss_out = np.linalg.norm(r_g, axis=1) / np.sqrt(3) > k_out if len(r_g) else np.zeros(0, bool)
         ok = ~obs_out
         rms = float(np.sqrt(np.mean(np.sum(res_px[ok] ** 2, 1)))) if ok.any() else float("nan")
-        g_vals = np.concatenate([p.intrinsics[lay.intr_idx],
+        readouts = np.broadcast_to(np.asarray(p.readout_s, float).reshape(-1), (p.n_groups,))
+        g_vals = np.concatenate([np.asarray(p.intrinsics, float).reshape(-1, 8)[lay.intr_free],
                                  p.lever_arm_cam_m if lay.lever else [],
                                  [p.delay_s] if lay.delay else [],
-                                 [p.readout_s] if lay.readout else []])
+                                 readouts[lay.readout_cols >= 0]])
         G = lay.n_global
         cam_cov = np.stack([Sinv[lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6, lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6]
                             for i in range(lay.n_cam)])
@@ -603,7 +674,7 @@ def adjust(problem: BundleProblem, options: BundleOptions | None = None) -> Bund
     at once lets Levenberg-Marquardt crawl along that valley instead of closing the misfit."""
     opt = options or BundleOptions()
     if opt.initial_variances is None and np.any(opt.free_intrinsics):
-        first = replace(opt, free_intrinsics=np.zeros(8, bool), estimate_readout=False, variance_components=False,
-                        max_iterations=30)
+        first = replace(opt, free_intrinsics=np.zeros_like(np.asarray(opt.free_intrinsics, bool)),
+                        estimate_readout=False, variance_components=False, max_iterations=30)
         BundleAdjuster(problem, first)._iterate(first.max_iterations)
     return BundleAdjuster(problem, opt).run()

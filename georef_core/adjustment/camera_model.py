@@ -131,7 +131,8 @@ def undistort_pixels(uv: np.ndarray, params: np.ndarray, iterations: int = 10, f
     """Pixels (n, 2) -> normalised undistorted image coordinates x = X/Z, y = Y/Z (n, 2): fixed-point
     iteration for the perspective model, Newton on the angle for the fisheye (rays beyond 90 degrees
     from the axis have no such coordinates and come back as NaN)."""
-    f, cx, cy, k1, k2, k3, p1, p2 = [float(v) for v in params]
+    params = np.asarray(params, float)     # (8,), or (n, 8) one camera per pixel
+    f, cx, cy, k1, k2, k3, p1, p2 = params.T if params.ndim == 2 else [float(v) for v in params]
     xd = (uv[:, 0] - cx) / f
     yd = (uv[:, 1] - cy) / f
     if fisheye:

@@ -19,8 +19,15 @@ class Triangulated:
     max_angle_deg: float         # widest intersection angle
 
 
+def _camera_of(intr, cam_idx):
+    """The intrinsics of each measurement: ``intr`` is one camera's (8,) or each camera's (N, 8) (several
+    cameras in the block), indexed like the rotations and centres."""
+    intr = np.asarray(intr, float)
+    return intr[np.asarray(cam_idx, int)] if intr.ndim == 2 else intr
+
+
 def _ray_directions(uv_px, cam_idx, R_cam_to_enu, intr, fisheye=False):
-    xy = undistort_pixels(np.asarray(uv_px, float), intr, fisheye=fisheye)
+    xy = undistort_pixels(np.asarray(uv_px, float), _camera_of(intr, cam_idx), fisheye=fisheye)
     d_cam = np.column_stack([xy, np.ones(len(xy))])
     d = np.einsum("nij,nj->ni", R_cam_to_enu[cam_idx], d_cam)
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -29,12 +36,14 @@ def _ray_directions(uv_px, cam_idx, R_cam_to_enu, intr, fisheye=False):
 def triangulate(uv_px, cam_idx, R_cam_to_enu, centres, intr, sigma_px: float = 1.0, iterations: int = 5,
                 fisheye: bool = False, centre_shift_enu_m=None) -> Triangulated:
     """Least-squares intersection of the rays (midpoint), refined by Gauss-Newton on the reprojection.
-    ``intr`` and ``fisheye``: the camera (see camera_model). ``centre_shift_enu_m`` (n, 3): where each
+    ``intr`` and ``fisheye``: the camera (see camera_model; (8,), or (N, 8) one row per camera of
+    ``R_cam_to_enu``). ``centre_shift_enu_m`` (n, 3): where each
     measurement's camera was at the exposure of its row, from ``centres`` (a rolling shutter; None: 0)."""
     uv_px = np.asarray(uv_px, float)
     cam_idx = np.asarray(cam_idx, int)
     origins = centres[cam_idx] + (0.0 if centre_shift_enu_m is None else np.asarray(centre_shift_enu_m, float))
     d = _ray_directions(uv_px, cam_idx, R_cam_to_enu, intr, fisheye)
+    intr = _camera_of(intr, cam_idx)
     A = np.zeros((3, 3))
     b = np.zeros(3)
     for oi, di in zip(origins, d):
@@ -104,7 +113,8 @@ def find_blunders(name: str, images: list[str], uv_px, cam_idx, R_cam_to_enu, ce
             others = float(np.sqrt(np.mean(np.sum(t.residual_px ** 2, 1))))
             i = keep[j]
             pc = R_cam_to_enu[cam_idx[i]].T @ (t.xyz_enu_m - centres[cam_idx[i]])
-            miss = float(np.linalg.norm(project_camera_points(pc[None], intr, fisheye)[0] - uv_px[i])) if pc[2] > 0 else np.inf
+            miss = float(np.linalg.norm(project_camera_points(pc[None], _camera_of(intr, [cam_idx[i]]), fisheye)[0]
+                                        - uv_px[i])) if pc[2] > 0 else np.inf
             if best is None or others < best[1]:
                 best = (j, others, miss)
         j, others, miss = best

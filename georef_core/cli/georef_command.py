@@ -109,6 +109,12 @@ def cmd_georef(args) -> int:
         f"{v:+.4f}" + (f" ± {e:.4f}" if lsig else "") for v, e in zip(ld["lever_arm_cam_m"], lsig or [0, 0, 0]))
           + ("" if lsig else " (fixed)"))
     print(f"delay: {1000 * ld['delay_s']:.2f} ms" + (f" ± {1000 * ld['delay_sigma_s']:.2f}" if ld["delay_sigma_s"] else " (fixed)"))
+    if len(s.get("cameras") or []) > 1:
+        print("cameras: " + "; ".join(f"{c['id']}: {c['label']} ({c['n_images']} images)" for c in s["cameras"]))
+    if s.get("doming"):
+        print(s["doming"]["text"])
+    if s.get("absolute_accuracy"):
+        print(f"absolute accuracy: {s['absolute_accuracy']['text']}")
     rs = s.get("rolling_shutter") or {}
     if rs.get("modelled"):
         print(f"rolling-shutter readout: {1000 * rs['readout_s']:.2f} ms"

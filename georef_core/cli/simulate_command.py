@@ -34,6 +34,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lens", choices=["perspective", "fisheye"],
                    help="camera lens: perspective (default; Brown distortion) or fisheye (a wide-angle action "
                         "camera, OpenCV fisheye model, about 90 degrees across)")
+    p.add_argument("--second-camera", metavar="WxH[:FOCAL_MM]",
+                   help="a second camera (another drone or setting) of this image size and optionally focal length "
+                        "(mm; default the first camera's, same sensor width), e.g. 800x600:5.2; every other image "
+                        "is taken with it (--second-camera-every)")
+    p.add_argument("--second-camera-every", type=int, default=2, metavar="N",
+                   help="images whose flight-order index is 1 modulo N are the second camera's (default 2)")
     p.add_argument("--images", type=int, metavar="N",
                    help="about N images: the work area (both sides, aspect ratio kept) is scaled until the planned "
                         "flight takes the image count nearest N; height, overlaps and camera are kept; on a small "
@@ -199,6 +205,11 @@ def options_from_args(args):
         if not 0.0 < args.readout_ms <= 200.0:
             raise GeorefError(f"--readout-ms {args.readout_ms:g}: expected more than 0 and at most 200 ms")
         o.camera = o.camera.rolling(args.readout_ms / 1000.0)
+    if args.second_camera:
+        o.second_camera = parse_second_camera(args.second_camera, o.camera)
+        if args.second_camera_every < 2:
+            raise GeorefError(f"--second-camera-every {args.second_camera_every}: at least 2")
+        o.second_camera_every = int(args.second_camera_every)
     if args.workers is not None:
         o.workers = args.workers
     if args.no_images:
@@ -226,6 +237,24 @@ def options_from_args(args):
             print(f"--images {args.images}: left out to fit the {o.site.size_m[0]:g} x {o.site.size_m[1]:g} m work "
                   f"area: {', '.join(dropped)}", file=sys.stderr)
     return o, n_planned
+
+
+def parse_second_camera(text: str, first):
+    """``WxH[:FOCAL_MM]`` -> CameraOptions of a second camera: the first camera's optics (distortion,
+    principal point, sensor width) with another pixel count and, when given, another focal length, a
+    slightly different distortion (another lens) and another EXIF model name."""
+    from dataclasses import replace as _replace
+
+    try:
+        size, _, focal = text.partition(":")
+        w, h = (int(v) for v in size.lower().split("x"))
+        f = float(focal) if focal else first.focal_mm
+    except ValueError:
+        raise GeorefError(f"--second-camera {text!r}: expected WxH or WxH:FOCAL_MM, e.g. 800x600:5.2") from None
+    if not (64 <= w <= 10000 and 64 <= h <= 10000 and 0.5 <= f <= 200):
+        raise GeorefError(f"--second-camera {text!r}: size 64-10000 px and focal length 0.5-200 mm")
+    return _replace(first.scaled(w, h), focal_mm=f, model=first.model + "-B", k1=first.k1 * 0.8, k2=first.k2 * 0.7,
+                    principal_offset=(-first.principal_offset[0], first.principal_offset[1] * 0.5))
 
 
 class ProgressBar:

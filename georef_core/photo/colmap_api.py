@@ -178,7 +178,7 @@ def number_images_by_name(database_path) -> bool:
     with more than one thread; matching and mapping break ties by id, so the same photos gave slightly
     different models each run. Called between extraction and matching (a database with matches is
     refused: their pair ids would need recomputing). Frames of one image each (COLMAP 4) are renumbered in
-    the same name order (when they all share one rig). Returns whether anything changed."""
+    the same name order within each rig (COLMAP makes one rig per camera). Returns whether anything changed."""
     import sqlite3
 
     con = sqlite3.connect(str(database_path))
@@ -193,14 +193,19 @@ def number_images_by_name(database_path) -> bool:
         new_of = {old: new for (old, _), new in zip(sorted(rows, key=lambda r: r[1]), ids) if old != new}
         frame_new_of = {}
         if {"frame_data", "frames"} <= columns.keys():
-            frames = con.execute("SELECT frame_id, MIN(data_id), COUNT(*), MAX(sensor_type) FROM frame_data "
-                                 "GROUP BY frame_id").fetchall()
-            one_rig = con.execute("SELECT COUNT(DISTINCT rig_id) FROM frames").fetchone()[0] <= 1
-            if frames and one_rig and all(n == 1 and kind == 0 for _, _, n, kind in frames):
+            frames = con.execute("SELECT d.frame_id, MIN(d.data_id), COUNT(*), MAX(d.sensor_type), f.rig_id "
+                                 "FROM frame_data d JOIN frames f ON f.frame_id = d.frame_id "
+                                 "GROUP BY d.frame_id").fetchall()
+            if frames and all(n == 1 and kind == 0 for _, _, n, kind, _ in frames):
+                # within each rig (one per camera: several cameras, several rigs), frames in image-name order
                 name_of = dict(rows)
-                by_name = sorted(frames, key=lambda f: name_of.get(f[1], ""))
-                frame_ids = sorted(f[0] for f in frames)
-                frame_new_of = {f[0]: new for f, new in zip(by_name, frame_ids) if f[0] != new}
+                rigs: dict[int, list] = {}
+                for f in frames:
+                    rigs.setdefault(f[4], []).append(f)
+                for rig_frames in rigs.values():
+                    by_name = sorted(rig_frames, key=lambda f: name_of.get(f[1], ""))
+                    frame_ids = sorted(f[0] for f in rig_frames)
+                    frame_new_of.update({f[0]: new for f, new in zip(by_name, frame_ids) if f[0] != new})
         if not new_of and not frame_new_of:
             return False
         with con:

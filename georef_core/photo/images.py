@@ -144,6 +144,11 @@ def read_image_info(path, warn: bool = True) -> ImageInfo:
     exif = {"0th": {}, "Exif": {}, "GPS": {}}
     if raw_exif:
         try:
+            from .exif_bounds import exif_problem
+
+            problem = exif_problem(raw_exif)      # piexif trusts every tag's value count (gigabytes, seconds)
+            if problem:
+                raise ValueError(problem)
             exif = piexif.load(raw_exif)
         except Exception as e:  # noqa: BLE001  (piexif raises anything on a corrupt EXIF block): the pixels are still usable
             if warn:
@@ -216,3 +221,81 @@ def local_positions_m(infos: list[ImageInfo]) -> tuple[dict[str, np.ndarray], di
     frame = {"type": "ENU", "origin_lat_deg": float(np.degrees(lat0)), "origin_lon_deg": float(np.degrees(lon0)),
              "origin_h_m": h0}
     return {i.name: enu[k] for k, i in enumerate(with_gps)}, frame
+
+
+# ----------------------------------------------------------------------------- camera groups
+
+# A camera group is calibrated from its own photos (one set of intrinsics for the group). With fewer than
+# this many photos its eight intrinsics rest on the one or two photos' own tie points, where the focal
+# length trades with the photo's height and the distortion with its tilt (a resection with a free camera):
+# such photos are left out, named, rather than allowed to bend the block or the DSM where they are the
+# only view (docs/georeferencing.md, "Mixed image sets").
+MIN_PHOTOS_PER_CAMERA = 3
+
+
+@dataclass
+class CameraGroup:
+    """Photos taken with one camera at one setting: same EXIF make and model, same image size in pixels,
+    same EXIF focal length (a zoom or a second drone makes another group; so does a resized or cropped
+    copy)."""
+
+    make: str | None
+    model: str | None
+    width: int
+    height: int
+    focal_length_mm: float | None
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def label(self) -> str:
+        cam = " ".join(v for v in (self.make, self.model) if v) or "unknown camera"
+        focal = f"{self.focal_length_mm:g} mm" if self.focal_length_mm else "no EXIF focal length"
+        return f"{cam}, {self.width} x {self.height} px, {focal}"
+
+    def to_dict(self) -> dict:
+        return {"make": self.make, "model": self.model, "width": self.width, "height": self.height,
+                "focal_length_mm": self.focal_length_mm, "label": self.label, "n_images": len(self.names),
+                "images": list(self.names)}
+
+
+def camera_key(info: ImageInfo) -> tuple:
+    """What tells one camera (setting) from another: make, model, size, focal length (to 0.01 mm)."""
+    focal = round(float(info.focal_length_mm), 2) if info.focal_length_mm else None
+    return ((info.make or "").strip().lower(), (info.model or "").strip().lower(), int(info.width),
+            int(info.height), focal)
+
+
+def group_cameras(infos: list[ImageInfo], min_photos: int = MIN_PHOTOS_PER_CAMERA
+                  ) -> tuple[list[CameraGroup], list[dict]]:
+    """Group the photos by camera (``camera_key``): (groups with at least ``min_photos`` photos, largest
+    first; left-out photos as dicts with ``image``, ``camera`` and ``reason``). When no group reaches
+    ``min_photos`` every photo is kept in its group (there is nothing better to calibrate with)."""
+    by_key: dict[tuple, CameraGroup] = {}
+    for i in infos:
+        k = camera_key(i)
+        if k not in by_key:
+            by_key[k] = CameraGroup(i.make, i.model, int(i.width), int(i.height), k[4])
+        by_key[k].names.append(i.name)
+    groups = sorted(by_key.values(), key=lambda g: (-len(g.names), g.names[0]))
+    if not any(len(g.names) >= min_photos for g in groups):
+        return groups, []
+    kept = [g for g in groups if len(g.names) >= min_photos]
+    left_out = []
+    main = kept[0]
+    for g in groups:
+        if len(g.names) >= min_photos:
+            continue
+        differs = []
+        if (g.width, g.height) != (main.width, main.height):
+            differs.append(f"{g.width} x {g.height} px where the main camera's photos are {main.width} x {main.height}")
+        if (g.make, g.model) != (main.make, main.model):
+            differs.append(f"camera {' '.join(v for v in (g.make, g.model) if v) or 'unknown'}")
+        if g.focal_length_mm != main.focal_length_mm:
+            differs.append(f"focal length {g.focal_length_mm if g.focal_length_mm else 'unknown'} mm")
+        for name in g.names:
+            left_out.append({"image": name, "camera": g.label,
+                             "reason": (f"{name}: left out: {'; '.join(differs) or 'another camera'}, and only "
+                                        f"{len(g.names)} photo{'s' if len(g.names) > 1 else ''} of that camera "
+                                        f"(at least {min_photos} are needed to calibrate a camera; a resized, "
+                                        f"cropped or stray photo?)")})
+    return kept, left_out

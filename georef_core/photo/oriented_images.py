@@ -175,10 +175,20 @@ def oriented_images_from_simulator_truth(survey_dir) -> OrientedImages:
     poses = json.loads((survey_dir / "truth" / "camera_poses.json").read_text())
     intr = json.loads((survey_dir / "truth" / "intrinsics.json").read_text())
     frame = ProjectFrame.from_dict(poses["site_frame"])
-    cam = OrientedCamera(intr["colmap_model"], int(intr["width"]), int(intr["height"]),
-                         list(map(float, intr["colmap_params"])), float(intr.get("readout_s", 0.0)))
-    images = [OrientedImage(p["name"], 1, np.asarray(p["R_cam_to_enu"], float), np.asarray(p["camera_centre_enu_m"], float),
+
+    def camera(d: dict) -> OrientedCamera:
+        return OrientedCamera(d["colmap_model"], int(d["width"]), int(d["height"]), list(map(float, d["colmap_params"])),
+                              float(d.get("readout_s", 0.0)))
+
+    cameras, camera_of = {1: camera(intr)}, {}
+    several = survey_dir / "truth" / "cameras.json"     # a survey simulated with a second camera
+    if several.is_file():
+        doc = json.loads(several.read_text())
+        cameras = {int(k): camera(json.loads((survey_dir / "truth" / v).read_text())) for k, v in doc["cameras"].items()}
+        camera_of = {k: int(v) for k, v in doc["images"].items()}
+    images = [OrientedImage(p["name"], camera_of.get(p["name"], 1), np.asarray(p["R_cam_to_enu"], float),
+                            np.asarray(p["camera_centre_enu_m"], float),
                             velocity_enu_m_s=None if "camera_velocity_enu_m_s" not in p
                             else np.asarray(p["camera_velocity_enu_m_s"], float))
               for p in poses["images"]]
-    return OrientedImages(frame, survey_dir / "images", {1: cam}, images, extra={"source": "simulator truth"})
+    return OrientedImages(frame, survey_dir / "images", cameras, images, extra={"source": "simulator truth"})

@@ -10,7 +10,8 @@
   model is not shipped yet).
 * Plain EXIF GPS (any other drone): the navigation-grade receiver's position, weighted honestly at
   3 m horizontally and 5 m vertically (a consumer receiver and barometric height); such a result's
-  absolute position rests on the control points, and the summary says so.
+  absolute position rests on its control points where it has some, else on these metre-level positions,
+  and the summary (``absolute_accuracy``) says which.
 
 Nothing else is estimated from these positions: no lever arm (the position already is the camera's)
 and no trigger delay (they carry no velocity).
@@ -48,7 +49,7 @@ class PhotoPositions:
         if self.kind == "rtk":
             return "RTK camera positions in the photos' XMP (drone-dji), weighted by their RtkStd sigmas"
         return (f"navigation-grade EXIF GPS of the photos, weighted {EXIF_GPS_SIGMA_M[0]:g} m horizontally and "
-                f"{EXIF_GPS_SIGMA_M[1]:g} m vertically: the absolute position rests on the control points")
+                f"{EXIF_GPS_SIGMA_M[1]:g} m vertically")
 
 
 def _enu_cov_to_ecef(lat: float, lon: float, sig_neu: tuple[float, float, float]) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import InputFileError, ProcessingError
 from . import colmap_api
-from .images import ImageInfo, local_positions_m, read_images
+from .images import MIN_PHOTOS_PER_CAMERA, ImageInfo, group_cameras, local_positions_m, read_images
 
 from ..progress import ProgressFn  # (stage, done, total)
 
@@ -25,7 +25,9 @@ MATCHERS = ("auto", "exhaustive", "spatial", "sequential")
 @dataclass
 class SfmOptions:
     camera_model: str = "SIMPLE_RADIAL"  # SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, ...
-    single_camera: bool = True  # one set of intrinsics shared by all images
+    single_camera: bool = True  # one set of intrinsics per camera group (make/model, size, focal length)
+    # a camera group (images.group_cameras) with fewer photos is left out, each photo named in a warning
+    min_photos_per_camera: int = MIN_PHOTOS_PER_CAMERA
     matcher: str = "auto"
     exhaustive_max_images: int = 30  # auto: exhaustive up to this many images
     spatial_max_neighbors: int = 20
@@ -72,6 +74,7 @@ class SfmResult:
     reconstruction: colmap_api.ReconstructionData | None
     images: list[ImageInfo] = field(default_factory=list)
     summary: dict = field(default_factory=dict)
+    left_out: list[dict] = field(default_factory=list)   # photos not used: image, camera, reason
 
     def centres_by_name(self) -> dict[str, np.ndarray]:
         if self.reconstruction is None:
@@ -112,6 +115,13 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
     timings["read_images"] = time.perf_counter() - t0
     if len(infos) < 2:
         raise InputFileError(image_dir, f"SfM needs at least 2 images, found {len(infos)}")
+    # one camera per (make/model, size, focal length); groups too small to calibrate are left out, named
+    groups, left_out = group_cameras(infos, opts.min_photos_per_camera)
+    for lo in left_out:
+        warnings.warn(lo["reason"], UserWarning, stacklevel=2)
+    all_infos = infos
+    kept_names = {n for g in groups for n in g.names}
+    infos = [i for i in infos if i.name in kept_names]
 
     positions, frame = (opts.positions, {"type": "given"}) if opts.positions else local_positions_m(infos)
     matcher = choose_matcher(len(infos), positions is not None, opts)
@@ -128,10 +138,11 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
 
     report("extraction", 0, len(infos))
     t0 = time.perf_counter()
-    colmap_api.extract_sift(db_path, image_dir, image_names=names, camera_model=opts.camera_model,
-                            single_camera=opts.single_camera, max_image_size=opts.max_image_size,
-                            max_num_features=opts.max_num_features, num_threads=opts.num_threads,
-                            use_gpu=opts.use_gpu, first_octave=_first_octave(opts, infos))
+    for g in groups:   # one extraction per group: COLMAP makes one camera for each (largest group: camera 1)
+        colmap_api.extract_sift(db_path, image_dir, image_names=g.names, camera_model=opts.camera_model,
+                                single_camera=opts.single_camera, max_image_size=opts.max_image_size,
+                                max_num_features=opts.max_num_features, num_threads=opts.num_threads,
+                                use_gpu=opts.use_gpu, first_octave=_first_octave(opts, infos))
     colmap_api.number_images_by_name(db_path)   # ids in name order, not in the threads' finishing order
     timings["extraction"] = time.perf_counter() - t0
     report("extraction", len(infos), len(infos))
@@ -178,6 +189,9 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
         "image_dir": str(image_dir),
         "pycolmap_version": colmap_api.PYCOLMAP_VERSION,
         "n_images": n,
+        "n_images_in_folder": len(all_infos),
+        "camera_groups": [g.to_dict() for g in groups],
+        "left_out": left_out,
         "matcher": matcher,
         "positions_frame": frame if positions is not None else None,
         "options": {k: v for k, v in asdict(opts).items() if k != "positions"},
@@ -200,4 +214,4 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
     return SfmResult(work_dir=work_dir, model_dir=model_dir, summary_path=summary_path, matcher=matcher,
                      n_images=n, n_registered=summary["n_registered"],
                      mean_reprojection_error_px=rec.mean_reprojection_error_px if rec else float("nan"),
-                     timings_s=timings, reconstruction=rec, images=infos, summary=summary)
+                     timings_s=timings, reconstruction=rec, images=infos, summary=summary, left_out=left_out)

@@ -54,6 +54,11 @@ class SimulationOptions:
     workers: int = 2  # images rendered concurrently (threads)
     write_images: bool = True
     gnss: GnssOptions | None = field(default_factory=GnssOptions)  # None: no rover/, base/, nav/ files
+    # a second camera (another drone, another resolution or focal length): images whose index (0-based, in
+    # flight order) is 1 modulo ``second_camera_every`` are taken with it (2: every other image); truth in
+    # truth/cameras.json (camera id per image) and intrinsics_camera2.json
+    second_camera: CameraOptions | None = None
+    second_camera_every: int = 2
 
     @classmethod
     def small(cls, width_px: int = 640, height_px: int = 480, **flight_kw) -> "SimulationOptions":
@@ -196,12 +201,18 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
     pr.stage("site")
     site = build_site(o.site, seed)
     camera = CameraModel.from_options(o.camera)
+    camera2 = CameraModel.from_options(o.second_camera) if o.second_camera is not None else None
     tick("site", t)
 
     t = time.perf_counter()
     pr.stage("flight")
     traj, events, plan = simulate_flight(site, camera, o.flight, seed)
     tick("flight", t)
+
+    if camera2 is not None and int(o.second_camera_every) < 2:
+        raise ValueError(f"second_camera_every {o.second_camera_every}: at least 2 (1 would be the second camera only)")
+    camera_of = {e.name: (camera2 if camera2 is not None and e.index % int(o.second_camera_every) == 1 else camera)
+                 for e in events}
 
     gnss = None
     if o.gnss is not None:
@@ -236,6 +247,9 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
         img_dir = out / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
         renderer = Renderer(mesh, texture, camera, o.render, seed=seed)
+        renderers = {id(camera): renderer}
+        if camera2 is not None:
+            renderers[id(camera2)] = Renderer(mesh, texture, camera2, o.render, seed=seed)
         frame = site.frame
 
         # poses and EXIF GPS tags first, in this thread (pyproj transformers are not shared across threads)
@@ -251,12 +265,12 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 g = frame.enu_to_grid(c + exif_rng.standard_normal(3) * sig)
                 lat, lon = frame.grid_to_latlon_rad(g[0], g[1])
                 gps = (math.degrees(float(lat)), math.degrees(float(lon)), float(g[2]))
-            jobs.append((e, R, c, traj.velocity_enu(te), exif_bytes(camera, gps_time_to_utc(te), gps)))
+            jobs.append((e, R, c, traj.velocity_enu(te), exif_bytes(camera_of[e.name], gps_time_to_utc(te), gps)))
 
         def job(item) -> Path:
             e, R, c, vel, exb = item
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), 505, e.index]))
-            img = renderer.render(R, c, rng, velocity_enu_m_s=vel)
+            img = renderers[id(camera_of[e.name])].render(R, c, rng, velocity_enu_m_s=vel)
             path = img_dir / e.name
             write_jpeg(path, img, exb, o.render.jpeg_quality)
             return path
@@ -268,14 +282,15 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 image_paths.append(job(item))
                 pr.image_done(i + 1, len(events))
         else:
-            renderer.options = replace(o.render, threads=o.render.threads or 1)
+            for r in renderers.values():
+                r.options = replace(o.render, threads=o.render.threads or 1)
             with ThreadPoolExecutor(max_workers=workers) as ex:
                 for i, p in enumerate(ex.map(job, jobs)):
                     image_paths.append(p)
                     pr.image_done(i + 1, len(events))
         pr.close()
         tick("render", t)
-        del mesh, texture, renderer
+        del mesh, texture, renderer, renderers
 
     t = time.perf_counter()
     pr.stage("truth")
@@ -285,7 +300,14 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 extra={"simulation_options": asdict(o), "rendered_bounds_site_m": list(bounds)})
     write_gcp_points(out / "gcp", site, o.gcp_noise_m, seed)
     write_gcp_image_measurements(out / "gcp" / "gcp_list.txt", site, traj, events, camera, o.flight.lever_arm_cam_m,
-                                 o.gcp_click_noise_px, seed, flight=o.flight)
+                                 o.gcp_click_noise_px, seed, flight=o.flight, camera_of=camera_of)
+    if camera2 is not None:
+        from .truth import write_json
+
+        write_json(out / "truth" / "intrinsics_camera2.json", camera2.to_dict())
+        write_json(out / "truth" / "cameras.json", {
+            "cameras": {"1": "intrinsics.json", "2": "intrinsics_camera2.json"},
+            "images": {e.name: 2 if camera_of[e.name] is camera2 else 1 for e in events}})
     _write_survey_json(out, site, traj, gnss)
     write_events_csv(out / "events.csv", events)
     _write_readmes(out, site, len(events), o.flight, gnss)

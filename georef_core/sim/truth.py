@@ -269,11 +269,12 @@ def write_truth(truth_dir, site, plan: FlightPlan, trajectory: Trajectory, event
 
 def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: list[CameraEvent], camera,
                                  lever_arm_cam_m, noise_px: float = 0.3, seed: int = 0, border_px: float = 8.0,
-                                 flight: FlightOptions | None = None) -> int:
+                                 flight: FlightOptions | None = None, camera_of: dict | None = None) -> int:
     """``gcp/gcp_list.txt``: where a surveyor would have clicked each target in each image, in OpenDroneMap's
     format (first line the CRS, then ``E N h x y image name``; pixel (0, 0) is the centre of the top-left
     pixel). Positions are the true projections (through a rolling shutter where the camera has one) plus ``noise_px`` (sigma per axis) of clicking noise;
-    targets closer than ``border_px`` to the image edge are left out. Returns the number of lines."""
+    targets closer than ``border_px`` to the image edge are left out; ``camera_of`` (image name -> camera)
+    where the images were taken with several cameras. Returns the number of lines."""
     f = site.frame
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 808]))
     lever = np.asarray(lever_arm_cam_m, dtype=float)
@@ -282,7 +283,9 @@ def write_gcp_image_measurements(path, site, trajectory: Trajectory, events: lis
         return 0
     t_enu = np.array([f.site_to_enu(t.x, t.y, t.z) for t in targets])
     lines = [f"EPSG:{f.epsg}"]
+    default_camera = camera
     for e in events:
+        camera = (camera_of or {}).get(e.name, default_camera)
         te = e.exposure_gps_time_s
         R = trajectory.R_cam_to_enu(te)
         c = trajectory.position_enu(te) + _antenna_to_camera_enu(trajectory, te, lever, flight)

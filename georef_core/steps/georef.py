@@ -115,25 +115,35 @@ def _shutter_flag(first_image: Path, option: bool | None, readout_s: float | Non
 READOUT_CORRELATION_WARNING = 0.4  # above it the estimated readout is called weakly determined (docs)
 
 
-def _shutter_outcome(shutter: dict, adj: "_Adjusted", opts: GeorefOptions, image_dir: Path, warnings: list) -> None:
-    """Record in ``shutter`` whether the adjustment modelled the rolling shutter (and the readout time it
-    used), or warn where a rolling-shutter camera could not be modelled."""
+def _shutter_outcomes(shutters: list[dict], adj: "_Adjusted", opts: GeorefOptions, image_dir: Path,
+                      warnings: list) -> None:
+    """Each camera group's ``_shutter_outcome``."""
+    for g, shutter in enumerate(shutters):
+        _shutter_outcome(shutter, adj, opts, image_dir, warnings, g)
+
+
+def _shutter_outcome(shutter: dict, adj: "_Adjusted", opts: GeorefOptions, image_dir: Path, warnings: list,
+                     group: int = 0) -> None:
+    """Record in ``shutter`` whether the adjustment modelled the rolling shutter of camera ``group`` (and the
+    readout time it used), or warn where a rolling-shutter camera could not be modelled."""
     if not shutter["rolling_shutter"]:
         return
     if adj.camera_velocity_enu_m_s is not None:
-        shutter.update(modelled=True, readout_s=round(adj.readout_s, 6),
-                       readout_sigma_s=None if adj.readout_sigma_s is None else round(adj.readout_sigma_s, 6),
+        readout, sigma = float(adj.readout_s[group]), adj.readout_sigma_s[group]
+        shutter.update(modelled=True, readout_s=round(readout, 6),
+                       readout_sigma_s=None if sigma is None else round(sigma, 6),
                        readout_source="given" if opts.readout_s is not None else "estimated")
         names = adj.correlations.get("names", [])
-        if "readout" in names:
-            row = np.abs(np.asarray(adj.correlations["matrix"], float)[names.index("readout")])
-            others = [(float(r), n) for r, n in zip(row, names) if n != "readout" and np.isfinite(r)]
+        key = "readout" if len(adj.readout_s) == 1 else f"cam{group + 1}.readout"
+        if key in names:
+            row = np.abs(np.asarray(adj.correlations["matrix"], float)[names.index(key)])
+            others = [(float(r), n) for r, n in zip(row, names) if n != key and np.isfinite(r)]
             if others:
                 rho, name = max(others)
                 shutter["readout_strongest_correlation"] = {"with": name, "abs_rho": round(rho, 3)}
                 if rho > READOUT_CORRELATION_WARNING:
                     warnings.append(
-                        f"{image_dir}: the rolling-shutter readout ({1000 * adj.readout_s:.1f} ms) is correlated "
+                        f"{image_dir}: the rolling-shutter readout ({1000 * readout:.1f} ms) is correlated "
                         f"{rho:.2f} with {name}: this block separates them weakly (few lines; on such blocks the "
                         f"estimate was found tens of ms off with a sigma of a few ms), so its sigma is optimistic; "
                         f"hold the readout with --readout-ms or a calibration flight's (--calibration)")
@@ -289,9 +299,45 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     opts.estimate_delay = False
     opts.delay_s = 0.0
     if pp.kind == "exif-gps":
-        warnings.append("camera positions from the photos' navigation-grade EXIF GPS (metre level): the survey's "
-                        "absolute accuracy rests on its control points, not on these positions")
+        warnings.append("camera positions from the photos' navigation-grade EXIF GPS (metre level): without control "
+                        "points the survey's absolute position is only as good as these positions (see "
+                        "absolute_accuracy in the summary); its shape and volumes do not depend on it")
     return gnss
+
+
+def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: ControlData, gnss_enu: dict) -> dict:
+    """What the result's absolute position rests on, in words and figures, for the summary (and the UI)."""
+    used = list(adj.stats.get("control_points_used") or [])
+    n_cp = len(used)
+    basis, text = [], []
+    if n_cp:
+        h, v = np.median([control.points[n].sigma_m for n in used if n in control.points], axis=0) \
+            if any(n in control.points for n in used) else (float("nan"), float("nan"))
+        basis.append({"kind": "control points", "n": n_cp, "sigma_m": [float(h), float(v)]})
+        text.append(f"{n_cp} control point(s) surveyed to {100 * h:.0f} cm horizontally / {100 * v:.0f} cm vertically")
+    used_gnss = [gnss_enu[r["image"]][2] for r in adj.gnss_rows if r["image"] in gnss_enu]
+    if gnss is not None and used_gnss:
+        cov = np.array(used_gnss)
+        sh = float(np.median(np.sqrt(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]))))
+        sv = float(np.median(np.sqrt(cov[:, 2, 2])))
+        kind = "photo positions" if gnss.from_photos else "PPK camera positions"
+        basis.append({"kind": kind, "source": gnss.source, "n": len(used_gnss),
+                      "median_sigma_m": {"horizontal": round(sh, 4), "vertical": round(sv, 4)}})
+        text.append(f"{len(used_gnss)} {kind} ({gnss.source}; stated sigma {_metres(sh)} horizontally, "
+                    f"{_metres(sv)} vertically, median per photo)")
+    if not basis:
+        return {"basis": [], "text": "no absolute reference"}
+    lead = "the survey's absolute position rests on " + " and ".join(text)
+    if not n_cp and gnss is not None and gnss.from_photos:
+        lead += (": no control point ties it to the ground, so its absolute accuracy is that of the photo positions "
+                 "at their stated sigma, and worse on the ground where the block is small (its tilt rests on the "
+                 "photos' height differences: a tilt error moves the ground by the flying height times the angle); "
+                 "check points, where given, measure it")
+    return {"basis": basis, "text": lead}
+
+
+def _metres(v: float) -> str:
+    return f"{v:.1f} m" if v >= 1.0 else f"{100 * v:.1f} cm"
 
 
 def _apply_camera_offsets(gnss: ImageGnss, offsets_ned_m: dict[str, np.ndarray], opts: GeorefOptions,
@@ -398,7 +444,6 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     warnings += found.warnings
     image_dir = found.image_dir
     image_names = _image_names(image_dir)
-    shutter = _shutter_flag(image_dir / image_names[0], opts.rolling_shutter, opts.readout_s)
 
     # ---- control points
     gcp_dir = survey_dir / "gcp"
@@ -490,36 +535,67 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
 
             rec = colmap_api.read_model(sfm_dir / "sparse" / "0")
     if rec is None:
-        res = run_sfm(image_dir, sfm_dir, sfm_opts, progress=progress)
+        import warnings as _warnings
+
+        with _warnings.catch_warnings():   # the left-out photos are reported below, from the SfM summary
+            _warnings.filterwarnings("ignore", message=r".*: left out: ")
+            res = run_sfm(image_dir, sfm_dir, sfm_opts, progress=progress)
         rec = res.reconstruction
     timings["sfm_s"] = time.perf_counter() - t0
+    sfm_summary = json.loads((sfm_dir / "sfm_summary.json").read_text()) if (sfm_dir / "sfm_summary.json").is_file() else {}
+    left_out = sfm_summary.get("left_out") or []
+    warnings += [lo["reason"] for lo in left_out]
     if rec is None or rec.num_registered < 3:
         raise ProcessingError(f"structure from motion registered {0 if rec is None else rec.num_registered} of "
                               f"{len(image_names)} images: the images do not overlap enough")
-    unregistered = sorted(set(image_names) - {im.name for im in rec.images.values()})
+    unregistered = sorted(set(image_names) - {im.name for im in rec.images.values()} - {lo["image"] for lo in left_out})
     if unregistered:
         warnings.append(f"{len(unregistered)} image(s) not registered by SfM: {', '.join(unregistered[:10])}"
                         + (" ..." if len(unregistered) > 10 else ""))
-    if len(rec.cameras) != 1:
-        warnings.append(f"SfM produced {len(rec.cameras)} cameras; the adjustment uses one shared camera")
+    cameras = _camera_groups(rec, image_dir)
+    shutters = [_shutter_flag(image_dir / c["first_image"], opts.rolling_shutter, opts.readout_s) for c in cameras]
 
     t0 = time.perf_counter()
     report("adjustment", 0, 1)
-    result = _adjust(opts, frame, rec, control, gnss_enu, warnings, rolling=bool(shutter["rolling_shutter"]),
-                     image_dir=image_dir)
-    _shutter_outcome(shutter, result, opts, image_dir, warnings)
+    result = _adjust(opts, frame, rec, control, gnss_enu, warnings,
+                     rolling=[bool(sh["rolling_shutter"]) for sh in shutters], image_dir=image_dir)
+    _shutter_outcomes(shutters, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
 
     t0 = time.perf_counter()
-    summary = _write_outputs(out, image_dir, opts, frame, rec, control, result, gnss, warnings)
+    summary = _write_outputs(out, image_dir, opts, frame, rec, control, result, gnss, warnings, cameras)
+    summary["images"]["left_out"] = left_out
+    summary["absolute_accuracy"] = _absolute_accuracy(gnss, result, control, gnss_enu)
     summary["inputs"] = found.summary()
     summary["target_refinement"] = target_refinement
-    summary["rolling_shutter"] = shutter
+    summary["rolling_shutter"] = dict(shutters[0])
+    if len(shutters) > 1:
+        summary["rolling_shutter"]["cameras"] = shutters
     timings["outputs_s"] = time.perf_counter() - t0
     summary["timings_s"] = {k: round(v, 2) for k, v in timings.items()}
     (out / "georef_summary.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _camera_groups(rec, image_dir: Path) -> list[dict]:
+    """The SfM's cameras in camera-id order (the adjustment's camera groups): id, size, COLMAP model, the
+    registered images and a label from the first image's EXIF (make, model, focal length)."""
+    from ..photo.images import read_image_info
+
+    out = []
+    for cid in sorted(rec.cameras):
+        c = rec.cameras[cid]
+        imgs = sorted(im.name for im in rec.images.values() if im.camera_id == cid)
+        if not imgs:
+            continue
+        info = read_image_info(image_dir / imgs[0], warn=False)
+        cam = " ".join(v for v in (info.make, info.model) if v) or "unknown camera"
+        focal = f"{info.focal_length_mm:g} mm" if info.focal_length_mm else "no EXIF focal length"
+        out.append({"colmap_camera_id": int(cid), "width": int(c.width), "height": int(c.height),
+                    "label": f"{cam}, {c.width} x {c.height} px, {focal}", "first_image": imgs[0],
+                    "n_images": len(imgs)})
+    return out
 
 
 # ------------------------------------------------------------------------------------------- adjustment
@@ -530,8 +606,8 @@ class _Adjusted:
     R_cam_to_enu: np.ndarray
     centre_enu_m: np.ndarray
     centre_cov_enu_m2: np.ndarray
-    intrinsics: np.ndarray
-    intrinsics_sigma: dict
+    intrinsics: np.ndarray           # (G, 8): one row per camera group
+    intrinsics_sigma: list           # per camera group: parameter name -> sigma
     lever_arm_cam_m: np.ndarray
     lever_arm_sigma_m: np.ndarray | None
     delay_s: float
@@ -545,19 +621,42 @@ class _Adjusted:
     stats: dict
     rerun: object = None             # callable(control_names) -> (R, C, intr, readout_s) for leave-one-out
     fisheye: bool = False            # projection of ``intrinsics`` (camera_model)
-    # rolling shutter, where modelled: each camera's velocity (at its trigger), the image height, the readout
+    camera_group: np.ndarray | None = None   # (N,) camera group (row of intrinsics) of each image
+    # rolling shutter, where modelled: each camera's velocity (at its trigger; zero for the images of a
+    # global-shutter camera), each group's image height and readout
     camera_velocity_enu_m_s: np.ndarray | None = None
-    image_height_px: float = 0.0
-    readout_s: float = 0.0
-    readout_sigma_s: float | None = None
+    image_height_px: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    readout_s: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    readout_sigma_s: list = field(default_factory=lambda: [None])
+    doming: dict | None = None       # the block's bending against the camera positions (doming.py)
 
-    def centre_shift_enu_m(self, cam_idx: np.ndarray, uv_px: np.ndarray, readout_s: float | None = None):
+    def camera_intrinsics(self, intr: np.ndarray | None = None) -> np.ndarray:
+        """(N, 8) each image's intrinsics (its group's row of ``intr``, default the adjusted ones)."""
+        intr = self.intrinsics if intr is None else intr
+        return np.asarray(intr, float).reshape(-1, 8)[self.camera_group]
+
+    def centre_shift_enu_m(self, cam_idx: np.ndarray, uv_px: np.ndarray, readout_s=None):
         """(n, 3) where each measurement's camera was at its row's exposure, from the camera centre; None
         for a global shutter (bundle_adjustment's rolling-shutter model)."""
         if self.camera_velocity_enu_m_s is None:
             return None
-        return rolling_shutter_shift(self.camera_velocity_enu_m_s[cam_idx], uv_px[:, 1], self.image_height_px,
-                                     self.readout_s if readout_s is None else readout_s)
+        g = self.camera_group[cam_idx]
+        readout = np.asarray(self.readout_s if readout_s is None else readout_s, float).reshape(-1)
+        return rolling_shutter_shift(self.camera_velocity_enu_m_s[cam_idx], uv_px[:, 1], self.image_height_px[g],
+                                     readout[g])
+
+
+def _intrinsics_sigmas(res, G: int, fisheye: bool) -> list[dict]:
+    """Per camera group: parameter name -> sigma of the free intrinsics (names 'f', ... with one camera,
+    'cam2.f', ... with several)."""
+    out: list[dict] = [{} for _ in range(G)]
+    pn = cm.param_names(fisheye)
+    for n in res.global_names:
+        g, _, k = n.rpartition(".")
+        if k not in pn or (G == 1) != (g == ""):
+            continue
+        out[int(g[3:]) - 1 if g else 0][k] = res.value(n)[1]
+    return out
 
 
 def _initial_similarity(rec, names, gnss_enu, lever, control: ControlData, control_enu: dict, im_idx, intr,
@@ -619,35 +718,56 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
 
 
 def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list,
-            rolling: bool = False, image_dir: Path | None = None) -> _Adjusted:
-    cam = next(iter(rec.cameras.values()))
+            rolling: bool | list = False, image_dir: Path | None = None) -> _Adjusted:
+    # the camera groups: the SfM's cameras of the registered images, in camera-id order (camera 1 is the
+    # largest group); every image has its group's intrinsics
+    images = sorted(rec.images.values(), key=lambda im: im.name)
+    names = [im.name for im in images]
+    cam_ids = sorted({im.camera_id for im in images})
+    cams = [rec.cameras[c] for c in cam_ids]
+    G = len(cams)
+    cam_group = np.array([cam_ids.index(im.camera_id) for im in images], int)
+    rolling_g = list(rolling) if isinstance(rolling, (list, tuple)) else [bool(rolling)] * G
     fisheye = cm.is_fisheye(opts.camera_model)
-    if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
-        raise ProcessingError(f"the structure from motion used the COLMAP camera {cam.model}, which does not match the "
-                              f"camera model {opts.camera_model!r}; re-run with --rerun")
-    # the SfM's own camera goes with its poses (the starting orientation and the blunder screening on it); a
+    for cam in cams:
+        if fisheye != (cam.model in cm.COLMAP_FISHEYE_MODELS):
+            raise ProcessingError(f"the structure from motion used the COLMAP camera {cam.model}, which does not match "
+                                  f"the camera model {opts.camera_model!r}; re-run with --rerun")
+    # the SfM's own cameras go with its poses (the starting orientation and the blunder screening on them); a
     # calibrated camera (fixed_intrinsics) is what the adjustment holds
-    intr_sfm = cm.from_colmap(cam.model, cam.params)
-    intr0 = intr_sfm
+    intr_sfm = np.array([cm.from_colmap(c.model, c.params) for c in cams])          # (G, 8)
+    intr0 = intr_sfm.copy()
+    held = np.zeros(G, bool)                   # groups held at a calibration
     prior = None
-    if opts.fixed_intrinsics is None and opts.factory_calibration != "ignore" and not fisheye and image_dir is not None:
-        first = sorted(im.name for im in rec.images.values())[0]
-        fc = factory_calibration(image_dir / first, cam.width, cam.height)
-        if fc is not None:
+    if opts.factory_calibration != "ignore" and not fisheye and image_dir is not None:
+        pv, ps, src = np.zeros((G, 8)), np.full((G, 8), np.inf), []
+        for g, cam in enumerate(cams):
+            if g == 0 and opts.fixed_intrinsics is not None:
+                continue
+            first = names[int(np.flatnonzero(cam_group == g)[0])]
+            fc = factory_calibration(image_dir / first, cam.width, cam.height)
+            if fc is None:
+                continue
+            label = fc[1] if G == 1 else f"camera {g + 1}: {fc[1]}"
             if opts.factory_calibration == "fixed":
-                opts.fixed_intrinsics = tuple(float(v) for v in fc[0])
-                warnings.append(f"camera held at its factory calibration ({fc[1]})")
+                intr0[g], held[g] = fc[0], True
+                warnings.append(f"camera held at its factory calibration ({label})")
             else:
                 sg = FACTORY_CALIBRATION_SIGMA
-                prior = (fc[0], np.array([sg["f_rel"] * fc[0][0], sg["pp_px"], sg["pp_px"], sg["k"], sg["k"],
-                                          sg["k"], sg["p"], sg["p"]]), fc[1])
+                pv[g] = fc[0]
+                ps[g] = [sg["f_rel"] * fc[0][0], sg["pp_px"], sg["pp_px"], sg["k"], sg["k"], sg["k"], sg["p"], sg["p"]]
+                src.append(label)
+        if src:
+            prior = (pv, ps, "; ".join(src))
     if opts.fixed_intrinsics is not None:
         if len(opts.fixed_intrinsics) != 8:
             raise ProcessingError(f"fixed intrinsics need 8 values: {', '.join(cm.param_names(fisheye)[:7 if fisheye else 8])}"
                                   f"{', 0' if fisheye else ''} (OpenCV pixels)")
-        intr0 = np.asarray(opts.fixed_intrinsics, float)
-    images = sorted(rec.images.values(), key=lambda im: im.name)
-    names = [im.name for im in images]
+        intr0[0], held[0] = np.asarray(opts.fixed_intrinsics, float), True
+        if G > 1:
+            warnings.append(f"the given calibration holds camera 1 ({cams[0].width} x {cams[0].height} px); the "
+                            f"other {G - 1} camera(s) are self-calibrated")
+    intr_sfm_cam = intr_sfm[cam_group]         # (N, 8) each image's SfM camera
     im_idx = {n: i for i, n in enumerate(names)}
     id_to_idx = {im.image_id: i for i, im in enumerate(images)}
     lever0 = np.asarray(opts.lever_arm_cam_m, float) if opts.lever_arm_cam_m is not None else np.zeros(3)
@@ -655,14 +775,18 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     control_enu = dict(zip([p.name for p in ctl_points], points_to_enu(ctl_points, frame))) if ctl_points else {}
 
     # rolling shutter: modelled where the images are adjusted and the GNSS gives each camera's velocity
-    # (images without GNSS keep a zero velocity: their rows are taken as exposed at once)
+    # (images without GNSS, or of a global-shutter camera, keep a zero velocity: their rows are taken as
+    # exposed at once)
     cam_vel = None
-    if rolling and gnss_enu and opts.mode in ("joint", "gcp"):
-        cam_vel = np.array([gnss_enu[n][1] if n in gnss_enu else np.zeros(3) for n in names], float)
+    if any(rolling_g) and gnss_enu and opts.mode in ("joint", "gcp"):
+        cam_vel = np.array([gnss_enu[n][1] if n in gnss_enu and rolling_g[cam_group[i]] else np.zeros(3)
+                            for i, n in enumerate(names)], float)
     estimate_readout = cam_vel is not None and opts.readout_s is None
-    readout0 = float(opts.readout_s) if opts.readout_s is not None else 0.0
+    readout0 = np.array([float(opts.readout_s) if opts.readout_s is not None and rolling_g[g] else 0.0
+                         for g in range(G)])
+    heights = np.array([float(c.height) for c in cams])
 
-    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr_sfm, fisheye)
+    sim = _initial_similarity(rec, names, gnss_enu, lever0, control, control_enu, im_idx, intr_sfm_cam, fisheye)
     R0 = np.array([sim.R @ im.R_cam_from_world.T for im in images])
     C0 = np.array([sim.apply(im.centre[None])[0] for im in images])
 
@@ -673,7 +797,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if not ms:
             continue
         keep, reps = find_blunders(pname, [m.image for m in ms], np.array([m.uv_px for m in ms]),
-                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr_sfm, opts.blunder_threshold_px,
+                                   np.array([im_idx[m.image] for m in ms]), R0, C0, intr_sfm_cam, opts.blunder_threshold_px,
                                    fisheye=fisheye)
         for r in reps:
             blunders.append({"point": r.point, "image": r.image, "residual_px": round(r.residual_px, 2), "message": r.message})
@@ -704,7 +828,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         g_xyz, g_cam, g_pt, g_uv = [], [], [], []
         for k, n in enumerate(gcp_names):
             ms = used[n]
-            t = triangulate(np.array([m[1] for m in ms]), np.array([im_idx[m[0]] for m in ms]), Rs, Cs, Is, fisheye=fisheye)
+            t = triangulate(np.array([m[1] for m in ms]), np.array([im_idx[m[0]] for m in ms]), Rs, Cs,
+                            np.asarray(Is).reshape(-1, 8)[cam_group], fisheye=fisheye)
             g_xyz.append(t.xyz_enu_m)
             for img, uv in ms:
                 g_cam.append(im_idx[img])
@@ -727,8 +852,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                              control_point=np.arange(n_tie, n_tie + len(gcp_names), dtype=int),
                              control_enu_m=np.array([control_enu[n] for n in gcp_names]).reshape(-1, 3),
                              control_cov_enu_m2=point_sigma_enu_cov([control.points[n] for n in gcp_names]),
-                             fisheye=fisheye, camera_velocity_enu_m_s=cam_vel,
-                             image_height_px=float(cam.height), readout_s=float(Ts))
+                             fisheye=fisheye, camera_velocity_enu_m_s=cam_vel, camera_group=cam_group,
+                             image_height_px=heights, readout_s=np.asarray(Ts, float).copy())
         if opts.lever_arm_cam_m is not None and opts.lever_arm_sigma_m is not None:
             prob.lever_arm_prior_cam_m = lever0.copy()
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
@@ -736,7 +861,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             prob.intrinsics_prior, prob.intrinsics_prior_sigma = prior[0].copy(), prior[1].copy()
         return prob, gn, gcp_names
 
-    free = cm.free_mask(opts.camera_model) if opts.fixed_intrinsics is None else np.zeros(8, bool)
+    free = np.tile(cm.free_mask(opts.camera_model), (G, 1))
+    free[held] = False
     est_lever = opts.estimate_lever_arm if opts.estimate_lever_arm is not None else \
         (opts.lever_arm_cam_m is None or opts.lever_arm_sigma_m is not None)
     control_names = {n for n, p in control.points.items() if p.role == "control"}
@@ -746,9 +872,10 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     gnss_rows: list[dict] = []
     stats: dict = {"mode": opts.mode}
     if prior is not None:
+        g0 = int(np.flatnonzero(np.isfinite(prior[1][:, 0]))[0])
         stats["factory_calibration"] = {"source": prior[2], "used_as": "prior",
-                                        "sigma": dict(zip(cm.param_names(fisheye), prior[1].round(6).tolist()))}
-    elif opts.factory_calibration == "fixed" and opts.fixed_intrinsics is not None:
+                                        "sigma": dict(zip(cm.param_names(fisheye), prior[1][g0].round(6).tolist()))}
+    elif opts.factory_calibration == "fixed" and held.any():
         stats["factory_calibration"] = {"used_as": "fixed"}
 
     def run_ba(control_set, use_gnss, with_lever, with_delay, start=None, variances=None):
@@ -772,14 +899,15 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         correlations = {"names": res.global_names, "matrix": np.round(corr, 3).tolist()}
         for k, n in enumerate(gn):
             gnss_rows.append({"image": n, "gps_time_s": gnss_enu[n][4], "status": gnss_enu[n][3],
-                              "residual_enu_m": res.gnss_residual_enu_m[k].round(4).tolist(),
+                              "residual_enu_m": res.gnss_residual_enu_m[k].round(5).tolist(),
+                              "sigma_u_m": round(float(np.sqrt(gnss_enu[n][2][2, 2] + 0.005 ** 2)), 5),
                               "outlier": bool(res.gnss_outlier[k])})
         stats.update({"iterations": res.iterations, "converged": res.converged,
                       "rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "tie_observation_outliers": int(res.obs_outlier.sum()), "gnss_outliers": int(res.gnss_outlier.sum()),
                       "control_points_used": gcps})
         intr = prob.intrinsics
-        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.param_names(fisheye)}
+        isig = _intrinsics_sigmas(res, G, fisheye)
         R, C = prob.R_cam_to_enu, prob.centre_enu_m
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
@@ -811,7 +939,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         stats.update({"rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "lever_delay_sigma0": fit.sigma0, "control_points_used": gcps,
                       "gnss_outliers": int(fit.outlier.sum())})
-        isig = {n: res.value(n)[1] for n in res.global_names if n in cm.param_names(fisheye)}
+        isig = _intrinsics_sigmas(res, G, fisheye)
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
     else:  # similarity
@@ -829,7 +957,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         lever, delay = lever0, fit.delay_s
         if opts.estimate_delay:
             delay_sigma = fit.sigma("delay")
-        isig = {}
+        isig = [{} for _ in range(G)]
         sd = np.sqrt(np.diag(fit.cov))
         correlations = {"names": fit.names, "matrix": np.round(fit.cov / np.outer(sd, sd), 3).tolist()}
         for k, n in enumerate(gn):
@@ -857,17 +985,51 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             return None
         return r.problem.R_cam_to_enu, r.problem.centre_enu_m, r.problem.intrinsics, r.problem.readout_s
 
-    readout, readout_sigma = readout0, None
+    readout, readout_sigma = readout0, [None] * G
     if final is not None:
-        readout = final[0].readout_s
-        if "readout" in res.global_names:
-            readout_sigma = res.value("readout")[1]
-    return _Adjusted(names=names, R_cam_to_enu=R, centre_enu_m=C, centre_cov_enu_m2=ccov, intrinsics=intr,
-                     intrinsics_sigma=isig, lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
+        readout = np.asarray(final[0].readout_s, float).reshape(-1)
+        for g in range(G):
+            key = "readout" if G == 1 else f"cam{g + 1}.readout"
+            if key in res.global_names:
+                readout_sigma[g] = res.value(key)[1]
+    return _Adjusted(names=names, R_cam_to_enu=R, centre_enu_m=C, centre_cov_enu_m2=ccov,
+                     intrinsics=np.asarray(intr, float).reshape(G, 8), intrinsics_sigma=isig,
+                     lever_arm_cam_m=np.asarray(lever, float), lever_arm_sigma_m=lever_sigma,
                      delay_s=float(delay), delay_sigma_s=delay_sigma, correlations=correlations, points_enu_m=P,
                      points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
-                     rerun=rerun, fisheye=fisheye, camera_velocity_enu_m_s=cam_vel,
-                     image_height_px=float(cam.height), readout_s=float(readout), readout_sigma_s=readout_sigma)
+                     rerun=rerun, fisheye=fisheye, camera_group=cam_group, camera_velocity_enu_m_s=cam_vel,
+                     image_height_px=heights, readout_s=np.asarray(readout, float).reshape(G),
+                     readout_sigma_s=readout_sigma)
+
+
+# ------------------------------------------------------------------------------------------- doming
+
+def _doming(adj: _Adjusted, control: ControlData, frame: ProjectFrame, checks: ResidualTable, warnings: list) -> dict:
+    """The block's bending (adjustment/doming.py) from the adjusted camera centres against their GNSS /
+    photo positions and, with six or more, from the check points; a warning when significant."""
+    from ..adjustment.doming import describe, fit_doming
+
+    out: dict = {"camera_positions": None, "check_points": None}
+    idx = {n: i for i, n in enumerate(adj.names)}
+    rows = [r for r in adj.gnss_rows if not r["outlier"] and r["image"] in idx and r.get("sigma_u_m")]
+    if rows:
+        xy = np.array([adj.centre_enu_m[idx[r["image"]], :2] for r in rows])
+        out["camera_positions"] = fit_doming(xy, [r["residual_enu_m"][2] for r in rows],
+                                             [r["sigma_u_m"] for r in rows], "camera positions (adjusted - GNSS)")
+    pts = [r for r in checks.rows if r.name in control.points]
+    if len(pts) >= 6:
+        enu = dict(zip([r.name for r in pts], points_to_enu([control.points[r.name] for r in pts], frame)))
+        out["check_points"] = fit_doming(np.array([enu[r.name][:2] for r in pts]), [r.dz_m for r in pts],
+                                         None, "check points (triangulated - surveyed)")
+    texts = [describe(d) for d in (out["camera_positions"], out["check_points"]) if d]
+    out["text"] = "; ".join(texts) if texts else "doming: not estimated (fewer than 6 camera positions or check points)"
+    for d in (out["camera_positions"], out["check_points"]):
+        if d and d["significant"]:
+            warnings.append(f"{describe(d)}: the block is bent; its DSM carries a bowl of about this size. Causes: a "
+                            "wrong or held lens distortion, a self-calibration on one flying height with weak camera "
+                            "positions. Remedies: a calibrated camera, oblique images or cross lines, control points "
+                            "spread over the block (docs/georeferencing.md, Doming)")
+    return out
 
 
 # ------------------------------------------------------------------------------------------- outputs
@@ -903,23 +1065,27 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
         if len(ms) < 2:
             continue
         uv, cams = np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms])
-        t = triangulate(uv, cams, R, C, intr, fisheye=adj.fisheye,
+        t = triangulate(uv, cams, R, C, adj.camera_intrinsics(intr), fisheye=adj.fisheye,
                         centre_shift_enu_m=adj.centre_shift_enu_m(cams, uv, readout_s))
         table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, t.cov_enu_m2, frame, control, len(ms)))
     return table
 
 
 def _write_outputs(out: Path, image_dir: Path, opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
-                   adj: _Adjusted, gnss, warnings: list) -> dict:
+                   adj: _Adjusted, gnss, warnings: list, cameras: list[dict] | None = None) -> dict:
     from ..photo.oriented_images import OrientedCamera, OrientedImage, OrientedImages
 
-    # oriented images
-    model, params = cm.to_colmap(adj.intrinsics, adj.fisheye)
-    w, h = next(iter(rec.cameras.values())).width, next(iter(rec.cameras.values())).height
+    # oriented images: one camera per camera group (ids 1, 2, ...)
     rolling = adj.camera_velocity_enu_m_s is not None  # the readout modelled: the dense step needs it too
+    cameras = cameras or _camera_groups(rec, image_dir)
+    oriented_cams = {}
+    for g, c in enumerate(cameras):
+        model, params = cm.to_colmap(adj.intrinsics[g], adj.fisheye)
+        oriented_cams[g + 1] = OrientedCamera(model, c["width"], c["height"], params,
+                                              float(adj.readout_s[g]) if rolling else 0.0)
     oi = OrientedImages(frame=frame, image_dir=Path(os.path.abspath(image_dir)),
-                        cameras={1: OrientedCamera(model, w, h, params, adj.readout_s if rolling else 0.0)},
-                        images=[OrientedImage(n, 1, adj.R_cam_to_enu[i], adj.centre_enu_m[i],
+                        cameras=oriented_cams,
+                        images=[OrientedImage(n, int(adj.camera_group[i]) + 1, adj.R_cam_to_enu[i], adj.centre_enu_m[i],
                                               np.sqrt(np.abs(np.diag(adj.centre_cov_enu_m2[i]))),
                                               adj.camera_velocity_enu_m_s[i] if rolling else None)
                                 for i, n in enumerate(adj.names)],
@@ -948,6 +1114,7 @@ def _write_outputs(out: Path, image_dir: Path, opts: GeorefOptions, frame: Proje
                 loo.rows.append(row)
         loo.write(out / "control_loo.json", out / "control_loo.csv")
     fit_table = _check_table(adj, frame, control, roles=("control",), kind="control points (in the adjustment)")
+    adj.doming = _doming(adj, control, frame, checks, warnings)
 
     lever = {"lever_arm_cam_m": adj.lever_arm_cam_m.round(5).tolist(),
              "lever_arm_sigma_m": None if adj.lever_arm_sigma_m is None else adj.lever_arm_sigma_m.round(5).tolist(),
@@ -956,10 +1123,13 @@ def _write_outputs(out: Path, image_dir: Path, opts: GeorefOptions, frame: Proje
              "model": "C = A(trigger) + R_cam_to_enu @ lever_arm + v(trigger) * delay",
              "correlations": adj.correlations}
     if rolling:  # the readout, with the lever arm and delay: what a calibration flight hands on
-        lever.update({"readout_s": round(adj.readout_s, 6),
-                      "readout_sigma_s": None if adj.readout_sigma_s is None else round(adj.readout_sigma_s, 6),
+        rs0 = adj.readout_sigma_s[0]
+        lever.update({"readout_s": round(float(adj.readout_s[0]), 6),
+                      "readout_sigma_s": None if rs0 is None else round(rs0, 6),
                       "rolling_shutter_model": "row v seen from C + v(trigger) * (v / image height - 0.5) * readout"})
-        lever["estimated"]["readout"] = adj.readout_sigma_s is not None
+        lever["estimated"]["readout"] = rs0 is not None
+        if len(adj.readout_s) > 1:
+            lever["readout_s_per_camera"] = [round(float(v), 6) for v in adj.readout_s]
     (out / "lever_arm_delay.json").write_text(json.dumps(lever, indent=1))
     (out / "gnss_residuals.json").write_text(json.dumps(adj.gnss_rows, indent=1))
 
@@ -981,8 +1151,13 @@ def _write_outputs(out: Path, image_dir: Path, opts: GeorefOptions, frame: Proje
         "gnss_source": gnss.source if gnss is not None else None,
         "sfm": {"mean_reprojection_error_px": rec.mean_reprojection_error_px, "points": int(len(rec.points_xyz))},
         "adjustment": adj.stats,
-        "intrinsics": {"names": list(cm.param_names(adj.fisheye)), "values": adj.intrinsics.round(7).tolist(),
-                       "sigma": {k: float(v) for k, v in adj.intrinsics_sigma.items()},
+        "cameras": [{"id": g + 1, **{k: v for k, v in c.items() if k != "first_image"},
+                     "values": adj.intrinsics[g].round(7).tolist(),
+                     "sigma": {k: float(v) for k, v in adj.intrinsics_sigma[g].items()}} for g, c in enumerate(cameras)],
+        "doming": adj.doming,
+        "intrinsics": {"names": list(cm.param_names(adj.fisheye)), "values": adj.intrinsics[0].round(7).tolist(),
+                       "sigma": {k: float(v) for k, v in adj.intrinsics_sigma[0].items()},
+                       "camera": 1 if len(cameras) == 1 else f"camera 1 of {len(cameras)} (see cameras)",
                        "projection": "fisheye" if adj.fisheye else "perspective",
                        "convention": "OpenCV pixels (top-left pixel centre = 0, 0); " + (
                            "OpenCV fisheye: radius f theta (1 + k1 theta^2 + ... + k4 theta^8)" if adj.fisheye else

@@ -88,3 +88,31 @@ def test_empty_folder_names_folder(tmp_path):
     with pytest.raises(InputFileError) as e:
         list_images(tmp_path)
     assert e.value.path == str(tmp_path) and "no image files" in str(e.value)
+
+
+def test_photos_are_grouped_by_camera_and_a_stray_photo_is_named():
+    """One camera per (make/model, size, focal length); a group of fewer than 3 photos is left out, each
+    of its photos named with what differs; when no group has 3 photos nothing is left out."""
+    from pathlib import Path
+
+    from georef_core.photo.images import ImageInfo, group_cameras
+
+    def info(name, w, h, model="FC6310", focal=8.8):
+        return ImageInfo(path=Path(name), name=name, width=w, height=h, make="DJI", model=model,
+                         focal_length_mm=focal)
+
+    infos = ([info(f"A{i}.JPG", 5472, 3648) for i in range(5)] + [info(f"B{i}.JPG", 4000, 3000, "FC330", 3.61)
+                                                                  for i in range(3)]
+             + [info("small.JPG", 1368, 912)])
+    groups, left_out = group_cameras(infos)
+    assert [(g.model, g.width, len(g.names)) for g in groups] == [("FC6310", 5472, 5), ("FC330", 4000, 3)]
+    assert [lo["image"] for lo in left_out] == ["small.JPG"]
+    reason = left_out[0]["reason"]
+    assert reason.startswith("small.JPG: left out") and "1368 x 912 px" in reason and "5472 x 3648" in reason
+    assert "at least 3" in reason
+    # a zoomed photo (same camera and size, another focal length) is another camera too
+    groups, left_out = group_cameras(infos[:5] + [info("zoom.JPG", 5472, 3648, focal=12.0)])
+    assert len(groups) == 1 and left_out[0]["image"] == "zoom.JPG" and "focal length 12.0 mm" in left_out[0]["reason"]
+    # nothing to calibrate better with: everything kept
+    groups, left_out = group_cameras([info("a.JPG", 640, 480), info("b.JPG", 800, 600)])
+    assert len(groups) == 2 and not left_out
