@@ -94,6 +94,34 @@ def choose_matcher(n_images: int, have_positions: bool, options: SfmOptions) -> 
     return "spatial" if have_positions else "sequential"
 
 
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
+
+
+def sfm_inputs_key(image_dir, options: SfmOptions) -> str:
+    """A hash of what an SfM result depends on: every image's name, size and first and last 64 KiB (the
+    EXIF block and enough pixels to tell an edited or replaced photo), the options (positions to the
+    centimetre) and the pycolmap version. A stored model is reused only under the same key: adding,
+    removing or replacing a photo, or changing an option, runs SfM again."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in sorted(Path(image_dir).iterdir()):
+        if p.suffix.lower() not in IMAGE_SUFFIXES or not p.is_file():
+            continue
+        size = p.stat().st_size
+        h.update(f"{p.name}\0{size}\0".encode())
+        with open(p, "rb") as fh:
+            h.update(fh.read(65536))
+            if size > 131072:
+                fh.seek(-65536, 2)
+                h.update(fh.read(65536))
+    opts = {k: v for k, v in asdict(options).items() if k != "positions"}
+    pos = {n: [round(float(c), 2) for c in v] for n, v in sorted((options.positions or {}).items())}
+    h.update(json.dumps({"options": opts, "positions": pos, "pycolmap": colmap_api.PYCOLMAP_VERSION},
+                        sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
 def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: ProgressFn | None = None) -> SfmResult:
     """Run SfM on the images of `image_dir`; everything is (re)written under `work_dir`:
     `database.db`, `sparse/0` (the largest model, COLMAP binary), `sfm_summary.json`."""
@@ -195,6 +223,7 @@ def run_sfm(image_dir, work_dir, options: SfmOptions | None = None, progress: Pr
         "matcher": matcher,
         "positions_frame": frame if positions is not None else None,
         "options": {k: v for k, v in asdict(opts).items() if k != "positions"},
+        "inputs_key": sfm_inputs_key(image_dir, opts),
         "database": counts,
         "models": out.model_sizes,
         "n_registered": rec.num_registered if rec else 0,

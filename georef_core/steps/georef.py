@@ -422,7 +422,7 @@ def _project_frame(opts: GeorefOptions, meta: dict, control: ControlData, gnss: 
 
 
 def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progress: ProgressFn | None = None) -> dict:
-    from ..photo.sfm import SfmOptions, run_sfm
+    from ..photo.sfm import SfmOptions, run_sfm, sfm_inputs_key
     from .gnss_solve import read_survey_json, run_survey_gnss
 
     if isinstance(options, dict):
@@ -530,7 +530,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     rec = None
     if opts.reuse and (sfm_dir / "sfm_summary.json").is_file():
         prev = json.loads((sfm_dir / "sfm_summary.json").read_text())
-        if prev.get("options", {}).get("camera_model") == sfm_model and (sfm_dir / "sparse" / "0").is_dir():
+        # reused only when made from the same photos with the same options (sfm.sfm_inputs_key)
+        if prev.get("inputs_key") == sfm_inputs_key(image_dir, sfm_opts) and (sfm_dir / "sparse" / "0").is_dir():
             from ..photo import colmap_api
 
             rec = colmap_api.read_model(sfm_dir / "sparse" / "0")
