@@ -36,6 +36,7 @@ from ..adjustment.triangulation import find_blunders, triangulate
 from ..errors import InputFileError, ProcessingError
 from ..progress import ProgressFn
 from ..project_frame import ProjectFrame, utm_epsg_for
+from .exif_triggers import exif_trigger_times, trigger_csv_text, write_trigger_csv  # noqa: F401
 from .georef_options import (FACTORY_CALIBRATION_CHOICES, IMAGE_SUFFIXES, MODE_ALIASES, MODES,  # noqa: F401
                              SFM_MODELS, GeorefOptions, georef_options_from_dict, validate_shutter_options)
 
@@ -193,41 +194,14 @@ def _survey_events(path: Path) -> dict[str, float]:
     return {r["image"]: float(r[key]) for r in rows}
 
 
-def exif_trigger_times(image_dir: Path, image_names: list[str], offset_s: float) -> tuple[dict[str, float], list[str]]:
-    """image name -> trigger GPS time from its EXIF time plus a clock offset (see GeorefOptions)."""
-    import datetime as dt
-
-    from ..gnss.gnss_time import utc_datetime_to_gps_time_s
-    from ..photo.images import read_image_info
-
-    times, warnings = {}, []
-    for name in image_names:
-        t = read_image_info(image_dir / name, warn=False).time_original
-        if t is None:
-            warnings.append(f"{name}: no EXIF DateTimeOriginal; the image is used without GNSS")
-            continue
-        utc = t.astimezone(dt.timezone.utc).replace(tzinfo=None) if t.tzinfo else t
-        times[name] = utc_datetime_to_gps_time_s(utc + dt.timedelta(seconds=float(offset_s)))
-    if not times:
-        raise InputFileError(image_dir, "no image has an EXIF time: trigger times cannot come from EXIF")
-    return times, warnings
-
-
-def _ppk_events_source(out: Path) -> str | None:
-    """Where the camera events of OUT_DIR/ppk came from (ppk/summary.json), None when unknown."""
+def _ppk_exif_offset(out: Path) -> float | None:
+    """The EXIF clock offset the PPK of OUT_DIR/ppk took its trigger times with (ppk/summary.json), None when
+    its triggers did not come from EXIF times."""
     try:
-        return json.loads((out / "ppk" / "summary.json").read_text())["events"]["source"]
-    except (OSError, ValueError, KeyError, TypeError):
+        v = json.loads((out / "ppk" / "summary.json").read_text()).get("exif_time_offset_s")
+    except (OSError, ValueError, AttributeError):
         return None
-
-
-def write_trigger_csv(path: Path, times: dict[str, float]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["image", "gps_time_s"])
-        for name, t in sorted(times.items(), key=lambda kv: kv[1]):
-            w.writerow([name, f"{t:.6f}"])
+    return None if v is None else float(v)
 
 
 def match_images_to_events(image_dir: Path, image_names: list[str], ppk_events_csv: Path,
@@ -471,19 +445,22 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         ev_csv = out / "ppk" / "events.csv"
         times, times_source = None, ""
         gnss_options = dict(opts.gnss_options)
-        trig = out / "exif_triggers.csv"
-        previous_triggers = trig.read_text() if trig.is_file() else None
-        if opts.exif_time_offset_s is not None:
-            times, w = exif_trigger_times(image_dir, image_names, opts.exif_time_offset_s)
+        # trigger times from the photos' EXIF times are a GNSS-step setting (exif_time_offset_s): the platform's
+        # gnss step made ppk/ with them and the run's GNSS options; this step reads them (the command line's
+        # --exif-time-offset runs the same GNSS step here, with the command's GNSS options)
+        gnss_offset = _ppk_exif_offset(out)
+        offset = gnss_offset if opts.ppk_from_gnss_step else opts.exif_time_offset_s
+        if offset is not None:
+            times, w = exif_trigger_times(image_dir, image_names, offset)
             warnings += w
-            write_trigger_csv(trig, times)
-            gnss_options["events_csv"] = str(trig)
-            times_source = f"EXIF times {opts.exif_time_offset_s:+.3f} s"
+            times_source = f"EXIF times {offset:+.3f} s"
+            made = out / "ppk" / "exif_triggers.csv"
+            same_triggers = gnss_offset == offset and made.is_file() and made.read_text() == trigger_csv_text(times)
+            gnss_options["exif_time_offset_s"] = offset
+        else:
+            same_triggers = gnss_offset is None
         # an earlier PPK is reused only when it was made for the same trigger times
-        made_from_exif = _ppk_events_source(out) == str(trig)
-        same_triggers = (made_from_exif and previous_triggers == trig.read_text()) if times is not None \
-            else not made_from_exif
-        if not (opts.reuse and ev_csv.is_file() and same_triggers):
+        if not opts.ppk_from_gnss_step and not (opts.reuse and ev_csv.is_file() and same_triggers):
             run_survey_gnss(survey_dir, out, gnss_options, found=found)
         if ev_csv.is_file():
             gnss = match_images_to_events(image_dir, image_names, ev_csv, times, times_source, found.events_csv)
@@ -1188,5 +1165,6 @@ def _write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray, comment: str = "") 
 
 
 def step_entry(workspace, options: dict, progress, context: dict) -> dict:
-    """The georef step as the contract runs it (specs.GEOREF)."""
-    return run_georef(workspace.survey_dir, workspace.out_dir, dict(options or {}) or None, progress)
+    """The georef step as the contract runs it (specs.GEOREF): the PPK is the gnss step's, read as it is."""
+    return run_georef(workspace.survey_dir, workspace.out_dir, {**dict(options or {}), "ppk_from_gnss_step": True},
+                      progress)

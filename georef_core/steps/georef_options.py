@@ -47,6 +47,9 @@ class GeorefOptions:
     # a camera's factory calibration written into its photos (DJI XMP DewarpData): "prior" weights it
     # (FACTORY_CALIBRATION_SIGMA) with the self-calibration, "fixed" holds it, "ignore" self-calibrates freely
     factory_calibration: str = "prior"
+    # the platform's georef step: OUT_DIR/ppk is the gnss step's result (made with the run's GNSS options and,
+    # if set there, its EXIF trigger times): it is read, never re-run here
+    ppk_from_gnss_step: bool = False
 
 
 FACTORY_CALIBRATION_CHOICES = ("prior", "fixed", "ignore")

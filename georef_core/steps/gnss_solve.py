@@ -209,7 +209,22 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
         raise ProcessingError(f"GNSS settings: {exc}") from None
     events_csv = found.events_csv
     rover_events_first = found.layout != "dji"     # a DJI MRK's exposures win over any event records
-    if opt.get("events_csv"):  # trigger times given explicitly (e.g. from EXIF times): they win
+    exif_warnings: list[str] = []
+    if opt.get("exif_time_offset_s") is not None:
+        # the photos' EXIF times plus the camera-clock offset are the triggers (exif_triggers.py)
+        from .exif_triggers import exif_trigger_times, write_trigger_csv
+        from .georef_options import IMAGE_SUFFIXES
+
+        image_dir = found.image_dir
+        names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) \
+            if image_dir is not None and image_dir.is_dir() else []
+        if not names:
+            raise InputFileError(survey_dir / "images", "exif_time_offset_s is set but the survey has no photos to "
+                                                        "take trigger times from")
+        times, exif_warnings = exif_trigger_times(image_dir, names, float(opt["exif_time_offset_s"]))
+        write_trigger_csv(out / "exif_triggers.csv", times)
+        events_csv, rover_events_first = out / "exif_triggers.csv", False
+    if opt.get("events_csv"):  # trigger times given explicitly: they win
         events_csv, rover_events_first = Path(opt["events_csv"]), False
     epsg = opt.get("epsg")
     if epsg is None and meta.get("project_crs", "").upper().startswith("EPSG:"):
@@ -218,7 +233,9 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
                              out / "trajectory.pos", rtk, events_csv=events_csv, epsg=epsg,
                              events_out=out / "events.csv", rover_events_first=rover_events_first,
                              approx_gps_time_s=approx_t, progress=_solve_progress(progress))
-    summary["warnings"] = found.warnings + summary.get("warnings", [])
+    summary["warnings"] = found.warnings + exif_warnings + summary.get("warnings", [])
+    if opt.get("exif_time_offset_s") is not None:
+        summary["exif_time_offset_s"] = float(opt["exif_time_offset_s"])
     # paths relative to the run folder, so a moved or re-used run folder stays valid
     summary["outputs"] = {k: _relative_to(v, out_dir) for k, v in summary["outputs"].items()}
     if "events" in summary:

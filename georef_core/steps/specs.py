@@ -14,7 +14,8 @@ GNSS = StepSpec(
     function="georef_core.steps.gnss_solve:step_entry",
     # DJI flight folders (flights/<name>/: photos, Timestamp.MRK, raw log) are read whole: the MRK exposures
     # are tied to the photos of their folder
-    inputs=("rover/", "base/", "nav/", "flights/", "events.csv", "survey.json"), site_data=("crs",),
+    # images/: their EXIF times are the triggers when exif_time_offset_s is set
+    inputs=("rover/", "base/", "nav/", "flights/", "images/", "events.csv", "survey.json"), site_data=("crs",),
     options=(
         Option("freq", "string", "auto", "frequencies (auto: both when the rover records a second band)",
                choices=("auto", "l1", "l1+l2", "l1+l2+l5")),
@@ -44,6 +45,9 @@ GNSS = StepSpec(
                minimum=1024, maximum=999999, advanced=True),
         Option("events_csv", "string", None, "a trigger-times file of the survey that overrides its own",
                advanced=True),
+        Option("exif_time_offset_s", "number", None, "trigger times from the photos' EXIF times plus this "
+               "camera-clock offset (for cameras whose exposures the receiver did not record)", minimum=-86400.0,
+               maximum=86400.0, unit="s", advanced=True),
     ),
     outputs=(
         Output("trajectory", "ppk/trajectory.pos", "RTKLIB .pos of the antenna", "text/plain"),
@@ -74,7 +78,8 @@ GEOREF = StepSpec(
     inputs=("rover/", "base/", "nav/", "flights/", "images/", "gcp/", "events.csv", "survey.json"),
     site_data=("crs", "vertical"),
     options=options_from_dataclass(
-        GeorefOptions, exclude=("gnss_options", "num_threads", "reuse"),
+        # exif_time_offset_s is a GNSS-step setting on the platform (the gnss step makes ppk/ with it)
+        GeorefOptions, exclude=("gnss_options", "num_threads", "reuse", "exif_time_offset_s", "ppk_from_gnss_step"),
         help={"mode": "joint (c), gcp (a) or similarity (b): Daakir et al. 2015",
               "camera_model": "camera model, self-calibrated", "lever_arm_cam_m": "known lever arm, camera frame",
               "estimate_lever_arm": "estimate the lever arm (default: unless one is given without a sigma)",
@@ -87,7 +92,6 @@ GEOREF = StepSpec(
               "max_tie_points": "tie points in the adjustment", "blunder_threshold_px": "blunder test threshold",
               "refine_targets": "sub-pixel refinement of clicked targets",
               "leave_one_out": "each control point also left out once",
-              "exif_time_offset_s": "trigger times from the images' EXIF time plus this offset",
               "rolling_shutter": "the camera has a rolling shutter (default: from its model)",
               "readout_s": "rolling-shutter readout time (default: estimated)",
               "fixed_intrinsics": "a calibrated camera's 8 intrinsics, held fixed",
@@ -104,7 +108,7 @@ GEOREF = StepSpec(
         readout_s={"minimum": 0.0, "maximum": 0.2, "unit": "s", "advanced": True},
         delay_s={"minimum": -1.0, "maximum": 1.0, "unit": "s"},
         lever_arm_sigma_m={"minimum": 0.0, "maximum": 10.0, "unit": "m"},
-        exif_time_offset_s={"unit": "s", "advanced": True}, project_epsg={"minimum": 1024, "maximum": 999999},
+        project_epsg={"minimum": 1024, "maximum": 999999},
         refine_targets={"advanced": True}, leave_one_out={"advanced": True}, rolling_shutter={"advanced": True}),
     outputs=(
         Output("oriented_images", "oriented_images.json", "camera poses and intrinsics", "application/json"),

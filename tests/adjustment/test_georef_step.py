@@ -195,7 +195,7 @@ def test_trigger_times_from_exif_with_a_clock_offset(survey, first_run, tmp_path
     s = json.loads((out / "georef_summary.json").read_text())
     assert s["images"]["with_gnss"] == 12 and "EXIF" in s["gnss_source"]
     truth = {r["image"]: float(r["trigger_gps_time_s"]) for r in csv.DictReader((survey / "events.csv").open())}
-    exif = {r["image"]: float(r["gps_time_s"]) for r in csv.DictReader((out / "exif_triggers.csv").open())}
+    exif = {r["image"]: float(r["gps_time_s"]) for r in csv.DictReader((out / "ppk" / "exif_triggers.csv").open())}
     assert set(exif) == set(truth)
     assert max(abs(exif[k] - truth[k]) for k in truth) < 0.0011
     assert s["rolling_shutter"]["rolling_shutter"] is None        # SimCam-GS is not in the shutter table
@@ -489,3 +489,31 @@ def test_doming_of_a_wrong_held_distortion_is_reported(survey, first_run, tmp_pa
         assert d["significant"] and np.sign(d["doming_m"]) == sign == np.sign(truth["doming_m"]), (d, truth)
         assert 0.5 < d["doming_m"] / truth["doming_m"] < 1.5, (d, truth)
         assert any(w.startswith("doming: ") and "significant" in w for w in s["warnings"]), s["warnings"]
+
+
+def test_exif_triggers_are_a_gnss_setting_and_georef_reads_the_gnss_steps_ppk(survey, first_run, tmp_path):
+    """The platform's order (issue 24): the gnss step makes ppk/ from the photos' EXIF times
+    (exif_time_offset_s) with the run's GNSS options; the georef step ties the photos to those triggers
+    without re-running PPK (before, it re-ran PPK into ppk/ with its own, default GNSS options)."""
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    _, delay = _truth_lever_delay(survey)
+    out = tmp_path / "platform"
+    out.mkdir()
+    shutil.copytree(first_run / "sfm", out / "sfm")
+    g = run_survey_gnss(survey, out, {"exif_time_offset_s": -delay, "elmask": 20.0})
+    assert g["exif_time_offset_s"] == pytest.approx(-delay) and g["options"]["elmask_deg"] == 20.0
+    assert (out / "ppk" / "exif_triggers.csv").is_file()
+    made = (out / "ppk" / "summary.json").stat().st_mtime_ns
+    from georef_core.steps.contract import Workspace
+    from georef_core.steps.georef import step_entry
+
+    s = step_entry(Workspace(survey, out), {"control": "T01,T03,T05", "leave_one_out": False}, None, {})
+    assert (out / "ppk" / "summary.json").stat().st_mtime_ns == made            # the gnss step's PPK, read
+    assert json.loads((out / "ppk" / "summary.json").read_text())["options"]["elmask_deg"] == 20.0
+    assert s["images"]["with_gnss"] == 12 and "EXIF" in s["gnss_source"]
+    from georef_core.errors import ProcessingError
+    from georef_core.steps.contract import get_spec
+
+    with pytest.raises(ProcessingError, match="georef settings: exif_time_offset_s: unknown option"):
+        get_spec("georef").validate({"exif_time_offset_s": 0.1})

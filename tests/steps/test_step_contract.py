@@ -63,7 +63,8 @@ def test_specs_agree_with_the_option_dataclasses():
     assert defaults(VolumeOptions).items() <= vol.items()
     georef = {o.name: o.default for o in get_spec("georef").options}
     assert georef == {k: (None if isinstance(v, dict) else v)
-                      for k, v in defaults(GeorefOptions, ("gnss_options", "num_threads", "reuse")).items()}
+                      for k, v in defaults(GeorefOptions, ("gnss_options", "num_threads", "reuse", "exif_time_offset_s",
+                                                           "ppk_from_gnss_step")).items()}
 
 
 def test_json_schema_of_a_step():
