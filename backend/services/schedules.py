@@ -19,7 +19,8 @@ from . import steps_catalog
 from .context import Ctx
 from .permissions import require_schedule, require_site
 from .sites import check_if_match
-from .surveys import validate_settings
+from .runs import add_log, create_run, merge_settings, settings_hash
+from .surveys import survey_files, validate_settings
 
 log = logging.getLogger("georef.schedules")
 CADENCES = ("none", "hourly", "daily", "weekly")
@@ -101,19 +102,6 @@ def delete_schedule(ctx: Ctx, schedule_id: str, if_match: str | None = None) -> 
     ctx.db.flush()
 
 
-def note_new_data(ctx: Ctx, survey: Survey, what: str) -> None:
-    """New base data / points for a survey: schedules that react to it get the survey queued."""
-    flag = Schedule.on_new_base if what == "base" else Schedule.on_new_points
-    for sch in ctx.db.scalars(select(Schedule).where(Schedule.site_id == survey.site_id, Schedule.enabled.is_(True),
-                                                      flag.is_(True))):
-        pending = list(sch.pending_survey_ids or [])
-        if survey.id not in pending:
-            pending.append(survey.id)
-        sch.pending_survey_ids = pending
-        if sch.pending_since is None:
-            sch.pending_since = utcnow()
-
-
 def _surveys_in_scope(db, sch: Schedule) -> list[Survey]:
     stmt = select(Survey).where(Survey.site_id == sch.site_id).order_by(Survey.flown_at.desc().nulls_last(),
                                                                        Survey.created_at.desc())
@@ -123,9 +111,6 @@ def _surveys_in_scope(db, sch: Schedule) -> list[Survey]:
 
 
 def _unchanged_since_last_run(db, survey: Survey, sch: Schedule) -> bool:
-    from .runs import merge_settings, settings_hash
-    from .surveys import survey_files
-
     last = db.scalar(select(Run).where(Run.survey_id == survey.id, Run.state == "succeeded")
                      .order_by(Run.number.desc()).limit(1))
     if last is None:
@@ -136,8 +121,6 @@ def _unchanged_since_last_run(db, survey: Survey, sch: Schedule) -> bool:
 
 def dispatch_due(ctx: Ctx, now: datetime | None = None) -> list[str]:
     """Start the runs of due schedules; the ids of the runs created."""
-    from .runs import add_log, create_run
-
     now = now or utcnow()
     created: list[str] = []
     debounce = timedelta(seconds=ctx.settings.new_data_debounce_s)

@@ -11,6 +11,7 @@ from ..models import Survey, SurveyFile, VolumeMeasurement
 from ..storage import blob_key
 from . import file_kinds
 from .context import Ctx
+from .new_data import note_new_data
 from .pagination import Page, paginate
 from .permissions import require_site, require_survey
 from .sites import check_if_match
@@ -183,8 +184,6 @@ def set_point_role(ctx: Ctx, survey_id: str, name: str, role: str) -> dict:
                   "check": sum(p["role"] == "check" for p in points)}
         s.version += 1
         ctx.db.flush()
-        from .schedules import note_new_data
-
         note_new_data(ctx, s, "points")
     return hit
 

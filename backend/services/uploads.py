@@ -32,6 +32,7 @@ from ..models.base import utcnow
 from . import file_kinds
 from .archives import ArchiveLimits, UnsafeArchive, extract_zip
 from .context import Ctx
+from .new_data import note_new_data
 from .permissions import require_survey, require_upload
 
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
@@ -483,7 +484,6 @@ def _verify_and_attach(ctx: Ctx, up: Upload, tmp: Path) -> bool:
         result={"files": attached, "ignored": ignored}))
     ctx.db.execute(UploadChunk.__table__.delete().where(UploadChunk.upload_id == up.id))
     ctx.db.flush()
-    from .schedules import note_new_data
 
     if any(k.endswith(":base") or k == "rinex-nav" for k in kinds):
         note_new_data(ctx, survey, "base")

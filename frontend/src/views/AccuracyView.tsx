@@ -15,7 +15,7 @@ import { ErrorBox, Figure, Loading, Note } from "../components/ui";
 import { useLoad, useStored } from "../hooks";
 import { DEFAULT_TOLERANCE, type Tolerance, type Unit, formatLength, residualsCsv, statsFromServed } from "../lib/residuals";
 import { showRun } from "./startRun";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 export function AccuracyView({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const res = useLoad((signal) => api.maybe<ResidualsResponse>(`/runs/${run.id}/results/residuals`, { signal }), [run.id]);

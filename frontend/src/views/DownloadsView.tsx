@@ -7,7 +7,7 @@ import { ErrorBox, Loading } from "../components/ui";
 import { useLoad } from "../hooks";
 import { formatBytes } from "../lib/format";
 import { loadSteps, productsOf, type StepProduct } from "../lib/steps";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 export function DownloadsView({ run }: { ctx: SurveyContext; run: Run }) {
   const files = useLoad((signal) => api.get<OutputFile[]>(`/runs/${run.id}/results`, { signal }), [run.id]);

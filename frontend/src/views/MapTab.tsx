@@ -12,7 +12,7 @@ import { type BBox, type Ring, bboxOf, openRing } from "../lib/geom";
 import { flightDate, formatVolume } from "../lib/format";
 import { type Grid, RAMPS, difference, quantiles, renderHeights } from "../lib/raster";
 import { autoRange, gridBBox, heightAt, useRunRaster } from "./rasterLayers";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 export interface SiteRun {
   run: Run;

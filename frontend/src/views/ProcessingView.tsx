@@ -12,7 +12,7 @@ import { EtaEstimator } from "../lib/eta";
 import { formatDateTime, formatDuration } from "../lib/format";
 import { loadSteps, parseSetting, settingFields, type SettingField } from "../lib/steps";
 import { runHref, showRun, useStartRun } from "./startRun";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 const STEP_TITLE: Record<string, string> = {
   gnss: "GNSS trajectory (PPK)",

@@ -12,17 +12,9 @@ import { MapTab } from "./MapTab";
 import { ProcessingView } from "./ProcessingView";
 import { UploadView } from "./UploadView";
 import { VolumesView } from "./VolumesView";
+import type { SurveyContext } from "./surveyContext";
 
-export interface SurveyContext {
-  survey: Survey;
-  site: Site;
-  runs: Run[];
-  /** The run the result tabs show. */
-  run: Run | null;
-  canEdit: boolean;
-  reloadRuns: () => void;
-  selectRun: (id: string) => void;
-}
+export type { SurveyContext };
 
 const TABS = [
   ["upload", "Data"],

@@ -15,7 +15,7 @@ import { type ObsRole, type Sniffed, type UploadKind, isObservation, sniffFile, 
 import { type PickedFile, filesFromDrop, filesFromInput, isClutter } from "../upload/collect";
 import { type UploadItem, UploadQueue } from "../upload/uploader";
 import { useStartRun } from "./startRun";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 interface LocalFile extends CheckedFile {
   file: File;

@@ -17,7 +17,7 @@ import { type Ring, area, outlinesFromGeoJson, ringToGeoJson, selfIntersects } f
 import { showRun } from "./startRun";
 import { pileOutlines, useChange, useSiteRuns } from "./MapTab";
 import { autoRange, heightAt, useRunRaster } from "./rasterLayers";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 const BASES = [
   ["plane", "Best-fit plane through the outline (recommended)"],

@@ -4,7 +4,7 @@ import { useState } from "preact/hooks";
 import { api } from "../api/client";
 import type { RunDetail } from "../api/types";
 import { href, navigate } from "../router";
-import type { SurveyContext } from "./SurveyView";
+import type { SurveyContext } from "./surveyContext";
 
 /** The address of a run's processing view. */
 export function runHref(ctx: SurveyContext, runId: string): string {
