@@ -459,41 +459,16 @@ POINT_COLUMNS = ("name", "easting_m", "northing_m", "ellipsoidal_height_m")
 
 
 def parse_points_csv(text: str) -> list[dict]:
-    """Rows of a points.csv (name,easting_m,northing_m,ellipsoidal_height_m[,role]); raises ValueError
-    with the line number of the first problem."""
-    rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#")))
-    if not rows:
-        raise ValueError("no rows")
-    header = [h.strip().lower() for h in rows[0]]
-    missing = [c for c in POINT_COLUMNS if c not in header]
-    if missing:
-        raise ValueError(f"header lacks column(s) {', '.join(missing)} (expected {','.join(POINT_COLUMNS)},role)")
-    idx = {c: header.index(c) for c in header}
-    out, seen = [], set()
-    for n, r in enumerate(rows[1:], 2):
-        if len(r) < len(header):
-            raise ValueError(f"line {n}: {len(r)} fields, {len(header)} expected")
-        name = r[idx["name"]].strip()
-        if not name:
-            raise ValueError(f"line {n}: empty point name")
-        if name in seen:
-            raise ValueError(f"line {n}: point {name!r} appears twice")
-        seen.add(name)
-        vals = {}
-        for c in POINT_COLUMNS[1:]:
-            try:
-                vals[c] = float(r[idx[c]])
-            except ValueError:
-                raise ValueError(f"line {n}: {c} {r[idx[c]]!r} is not a number") from None
-            if vals[c] != vals[c] or abs(vals[c]) == float("inf"):
-                raise ValueError(f"line {n}: {c} is not finite")
-        role = r[idx["role"]].strip().lower() if "role" in idx else "check"
-        if role not in ("control", "check"):
-            raise ValueError(f"line {n}: role {role!r} is neither control nor check")
-        out.append({"name": name, **vals, "role": role})
-    if not out:
-        raise ValueError("header only, no point")
-    return out
+    """Rows of a points.csv as the georef step reads them (the core's parse_points_table: the same column
+    names and checks), {name, easting_m, northing_m, ellipsoidal_height_m, role}; raises ValueError with the
+    line number of the first problem."""
+    from georef_core.adjustment.control_points import parse_points_table
+    from georef_core.errors import InputFileError
+
+    try:
+        return parse_points_table(text)
+    except InputFileError as exc:
+        raise ValueError(f"line {exc.line}: {exc.problem}" if exc.line else exc.problem) from None
 
 
 def format_points_csv(points: list[dict]) -> str:

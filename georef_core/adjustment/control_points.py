@@ -14,6 +14,7 @@ pixel. Without point names, points are told apart by their coordinates.
 from __future__ import annotations
 
 import csv
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,16 +72,17 @@ def parse_crs(text: str, path=None) -> str:
     return t
 
 
-def read_points_csv(path, crs: str, default_role: str = "check") -> dict[str, GroundPoint]:
-    path = Path(path)
-    crs = parse_crs(crs, path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read the point file ({exc})") from None
+POINT_FIELDS = ("easting_m", "northing_m", "ellipsoidal_height_m")
+
+
+def parse_points_table(text: str, default_role: str = "check", source=None) -> list[dict]:
+    """The rows of a surveyed-points table (CSV: a name column and easting/x, northing/y, height/z columns
+    under any of their usual names, an optional role/type/use column: control or check, 'gcp' meaning
+    control) as {name, easting_m, northing_m, ellipsoidal_height_m, role}: the one reading of points.csv,
+    for the georef step and the upload check alike. Raises InputFileError(source, problem, line)."""
     rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#")))
     if not rows:
-        raise InputFileError(path, "the point file is empty")
+        raise InputFileError(source, "the point file is empty")
     head = [h.strip().lower() for h in rows[0]]
 
     def col(cands):
@@ -93,23 +95,46 @@ def read_points_csv(path, crs: str, default_role: str = "check") -> dict[str, Gr
     iname = col(("name", "id", "point", "label"))
     irole = col(("role", "type", "use"))
     if None in (ix, iy, iz, iname):
-        raise InputFileError(path, f"needs columns name, easting/x, northing/y and height/z; found {rows[0]}")
-    out = {}
+        raise InputFileError(source, f"needs columns name, easting/x, northing/y and height/z; found {rows[0]}")
+    out, seen = [], set()
     for k, r in enumerate(rows[1:], start=2):
-        try:
-            xyz = np.array([float(r[ix]), float(r[iy]), float(r[iz])])
-        except (ValueError, IndexError):
-            raise InputFileError(path, "a coordinate is not a number", line=k) from None
-        name = r[iname].strip()
+        if len(r) < len(head):
+            raise InputFileError(source, f"{len(r)} fields, {len(head)} expected", line=k)
+        xyz = []
+        for i in (ix, iy, iz):
+            try:
+                v = float(r[i])
+            except ValueError:
+                raise InputFileError(source, f"{head[i]} {r[i]!r} is not a number", line=k) from None
+            if not math.isfinite(v):
+                raise InputFileError(source, f"{head[i]} {r[i]!r} is not finite", line=k)
+            xyz.append(v)
+        name = r[iname].strip() if iname < len(r) else ""
+        if not name:
+            raise InputFileError(source, "empty point name", line=k)
         role = (r[irole].strip().lower() if irole is not None and irole < len(r) else default_role) or default_role
         if role in ("gcp", "control point"):
             role = "control"
         if role not in ("control", "check"):
-            raise InputFileError(path, f"role {role!r} of {name} is neither control nor check", line=k)
-        if name in out:
-            raise InputFileError(path, f"point {name} appears twice", line=k)
-        out[name] = GroundPoint(name, xyz, crs, role)
+            raise InputFileError(source, f"role {role!r} of {name} is neither control nor check", line=k)
+        if name in seen:
+            raise InputFileError(source, f"point {name} appears twice", line=k)
+        seen.add(name)
+        out.append({"name": name, **dict(zip(POINT_FIELDS, xyz)), "role": role})
+    if not out:
+        raise InputFileError(source, "header only, no point")
     return out
+
+
+def read_points_csv(path, crs: str, default_role: str = "check") -> dict[str, GroundPoint]:
+    path = Path(path)
+    crs = parse_crs(crs, path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read the point file ({exc})") from None
+    return {r["name"]: GroundPoint(r["name"], np.array([r[c] for c in POINT_FIELDS]), crs, r["role"])
+            for r in parse_points_table(text, default_role, path)}
 
 
 def read_gcp_list(path) -> tuple[str, dict[str, GroundPoint], list[ImageMeasurement]]:

@@ -170,3 +170,30 @@ def test_residual_table_statistics_and_files(tmp_path):
     lines = (tmp_path / "r.csv").read_text().splitlines()
     assert lines[0].startswith("point,role,dx_m") and lines[1].startswith("a,check,0.0100,-0.0200,0.0300")
     assert "RMSE" in t.format_text()
+
+
+def test_upload_check_and_georef_step_read_points_csv_alike(tmp_path):
+    """One reading of points.csv (issue 24): the upload check (backend file_kinds) uses the core's
+    parse_points_table, so a table the georef step reads is accepted at upload (usual column names such as
+    x/y/z and a 'type' column with 'gcp'), with the same rows, and a bad one is refused with the same words."""
+    import pytest as _pytest
+
+    from backend.services.file_kinds import parse_points_csv
+    from georef_core.adjustment.control_points import read_points_csv
+    from georef_core.errors import InputFileError
+
+    text = "id,x,y,z,type\nA,500000.0,5700000.0,101.5,gcp\nB,500010.0,5700020.0,99.25,check\n"
+    p = tmp_path / "points.csv"
+    p.write_text(text)
+    core = read_points_csv(p, "EPSG:32631")
+    upload = parse_points_csv(text)
+    assert [(r["name"], r["role"], r["easting_m"], r["ellipsoidal_height_m"]) for r in upload] == \
+        [(n, g.role, float(g.xyz_crs[0]), float(g.xyz_crs[2])) for n, g in core.items()]
+    assert upload[0]["role"] == "control"
+    bad = text.replace("99.25", "ninety")
+    p.write_text(bad)
+    with _pytest.raises(InputFileError, match="z 'ninety' is not a number") as err:
+        read_points_csv(p, "EPSG:32631")
+    assert err.value.line == 3
+    with _pytest.raises(ValueError, match="line 3: z 'ninety' is not a number"):
+        parse_points_csv(bad)
