@@ -102,11 +102,6 @@ class _Registry:
             return StepBinding("report", _report, None)
         return StepBinding(spec.name, _contract_adapter(spec.name), spec.function)
 
-    def __contains__(self, step: str) -> bool:
-        from backend.services import steps_catalog
-
-        return step in steps_catalog.BY_NAME
-
 
 REGISTRY = _Registry()
 

@@ -78,19 +78,3 @@ def validate_settings(settings: dict | None) -> dict:
             raise OptionError(section, "(section)", f"unknown settings section; sections are {', '.join(ORDER)}")
         out[section] = get_spec(section).validate(values)
     return out
-
-
-def result_paths() -> dict[str, tuple[str, ...]]:
-    """Every declared output, by '<step>.<key>' and by the plain key where it is unique: its path in the run
-    folder."""
-    paths: dict[str, tuple[str, ...]] = {}
-    seen: dict[str, int] = {}
-    for spec in STEPS:
-        for o in spec.outputs:
-            paths[f"{spec.name}.{o.key}"] = (o.path,)
-            seen[o.key] = seen.get(o.key, 0) + 1
-    for spec in STEPS:
-        for o in spec.outputs:
-            if seen[o.key] == 1:
-                paths[o.key] = (o.path,)
-    return paths

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -244,10 +245,6 @@ class Workspace:
     def path(self, step: str, key: str) -> Path:
         return self.out_dir / get_spec(step).output(key).path
 
-    def existing(self, step: str, key: str) -> Path | None:
-        p = self.path(step, key)
-        return p if p.exists() else None
-
 
 # ------------------------------------------------------------------------------------------------- registry
 _REGISTRY: dict[str, StepSpec] = {}
@@ -307,7 +304,7 @@ def get_spec(name: str) -> StepSpec:
 def _kind_of(tp) -> tuple[str, int | None]:
     origin = typing.get_origin(tp)
     args = [a for a in typing.get_args(tp) if a is not type(None)]
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)) and len(args) == 1:
+    if origin in (typing.Union, types.UnionType) and len(args) == 1:
         return _kind_of(args[0])
     if tp is bool:
         return "boolean", None
@@ -335,14 +332,8 @@ def options_from_dataclass(cls, help: dict[str, str] | None = None, exclude: tup
         if f.name in exclude:
             continue
         kind, length = _kind_of(hints[f.name])
-        if f.default is not dataclasses.MISSING:
-            default = f.default
-        elif f.default_factory is not dataclasses.MISSING:     # type: ignore[misc]
-            default = None
-        else:
-            default = None
-        if dataclasses.is_dataclass(default) or isinstance(default, dict):
-            default = None
+        # a default made by a factory (a dict, a nested options group) is the step's own: none declared
+        default = None if f.default is dataclasses.MISSING or isinstance(f.default, dict) else f.default
         kw = dict(name=f.name, kind=kind, default=default, help=(help or {}).get(f.name, ""), length=length)
         kw.update(overrides.get(f.name, {}))
         out.append(Option(**kw))

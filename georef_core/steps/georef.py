@@ -36,7 +36,7 @@ from ..adjustment.triangulation import find_blunders, triangulate
 from ..errors import InputFileError, ProcessingError
 from ..progress import ProgressFn
 from ..project_frame import ProjectFrame, utm_epsg_for
-from .exif_triggers import exif_trigger_times, trigger_csv_text, write_trigger_csv  # noqa: F401
+from .exif_triggers import exif_trigger_times, trigger_csv_text
 from .georef_options import (FACTORY_CALIBRATION_CHOICES, IMAGE_SUFFIXES, MODE_ALIASES, MODES,  # noqa: F401
                              SFM_MODELS, GeorefOptions, georef_options_from_dict, validate_shutter_options)
 

@@ -184,11 +184,8 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     for key, field, cast in (("elmask", "elevation_mask_deg", float), ("ar", "ar_mode", str),
                              ("ratio", "ratio_threshold", float), ("tdcp_slips", "slip_tdcp_threshold_m", float),
                              ("hold_variance", "hold_variance_cyc2", float)):
-        if opt.get(key) is not None:
-            try:
-                kw[field] = cast(opt[key])
-            except (TypeError, ValueError):
-                raise ProcessingError(f"GNSS settings: {key} {opt[key]!r} is not a number") from None
+        if opt.get(key) is not None:      # types checked by the spec (get_spec("gnss").validate above)
+            kw[field] = cast(opt[key])
     if opt.get("reverse_witness") is not None:
         kw["reverse_witness"] = opt["reverse_witness"]
     if opt.get("event_edge") is not None:
