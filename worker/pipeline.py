@@ -6,31 +6,14 @@ results that the platform stores (volumes) are read from the step's declared out
 
 from __future__ import annotations
 
-import importlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from georef_core.steps.contract import StepUnavailable, resolve_function
 
-class StepUnavailable(Exception):
-    pass
-
-
-def resolve(target: str) -> Callable:
-    """'package.module:function' -> the function; StepUnavailable when the module or the function is
-    not there (a module that exists but fails to import is a bug and raises)."""
-    module_name, func_name = target.split(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name and (module_name == exc.name or module_name.startswith(exc.name + ".")):
-            raise StepUnavailable(f"{module_name} is not installed") from None
-        raise
-    fn = getattr(module, func_name, None)
-    if fn is None:
-        raise StepUnavailable(f"{module_name}.{func_name} does not exist")
-    return fn
+__all__ = ["REGISTRY", "StepBinding", "StepUnavailable", "check_available", "stored_volumes"]
 
 
 # ------------------------------------------------------------------------------------------ contract steps
@@ -49,8 +32,7 @@ def _contract_adapter(step: str) -> Callable:
     def adapter(survey_dir: Path, out_dir: Path, options: dict, progress, run: dict) -> dict:
         from georef_core.steps.contract import Workspace, get_spec
 
-        spec = get_spec(step)
-        fn = resolve(spec.function)
+        fn = get_spec(step).resolve()
         return fn(Workspace(survey_dir, out_dir), dict(options or {}), progress, _context(run))
     return adapter
 
@@ -112,4 +94,4 @@ def check_available(step: str, run: dict) -> None:
     b = REGISTRY[step]
     if b.target is None or (step == "volumes" and not run["stockpiles"]):
         return
-    resolve(b.target)
+    resolve_function(b.target)

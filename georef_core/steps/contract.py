@@ -228,10 +228,30 @@ class StepSpec:
                 "summary": dict(self.summary)}
 
     def resolve(self) -> Callable:
+        """The step's function (StepUnavailable when it has none or it is not installed)."""
         if self.function is None:
-            raise ProcessingError(f"step {self.name} has no function in this installation")
-        module, name = self.function.split(":")
-        return getattr(importlib.import_module(module), name)
+            raise StepUnavailable(f"step {self.name} has no function in this installation")
+        return resolve_function(self.function)
+
+
+class StepUnavailable(ProcessingError):
+    """A step's function is not installed here (its module or function is missing)."""
+
+
+def resolve_function(target: str) -> Callable:
+    """'package.module:function' -> the function; StepUnavailable when the module or the function is not
+    there (a module that exists but fails to import is a bug and raises)."""
+    module_name, func_name = target.split(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and (module_name == exc.name or module_name.startswith(exc.name + ".")):
+            raise StepUnavailable(f"{module_name} is not installed") from None
+        raise
+    fn = getattr(module, func_name, None)
+    if fn is None:
+        raise StepUnavailable(f"{module_name}.{func_name} does not exist")
+    return fn
 
 
 class Workspace:
