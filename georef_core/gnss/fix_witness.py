@@ -33,7 +33,7 @@ import dataclasses
 import numpy as np
 
 from .fix_continuity import MIN_SIGNALS
-from .phase_consistency import anchored_rms_m
+from .phase_consistency import PhaseSpans, anchored_rms_m
 from .rtk_filter import STATUS_FIX, STATUS_FLOAT, FilterOutput, PreparedData
 from .rtk_options import RtkOptions
 
@@ -59,6 +59,7 @@ class PhaseArbiter:
 
     def __init__(self, data: PreparedData, opts: RtkOptions):
         self.data, self.opts = data, opts
+        self._spans: PhaseSpans | None = None   # built at the first conflict, shared by every later one
 
     def __call__(self, epochs: np.ndarray, pos_a: np.ndarray, pos_b: np.ndarray, anchors: np.ndarray,
                  anchor_ecef_m: np.ndarray) -> np.ndarray:
@@ -69,8 +70,12 @@ class PhaseArbiter:
             return out
         fixed = np.zeros(len(pos_a), dtype=bool)
         fixed[epochs] = True
-        rms_a, _ = anchored_rms_m(self.data, self.opts, pos_a, fixed, anchor_ecef_m, anchors, min_signals=MIN_SIGNALS)
-        rms_b, _ = anchored_rms_m(self.data, self.opts, pos_b, fixed, anchor_ecef_m, anchors, min_signals=MIN_SIGNALS)
+        if self._spans is None:
+            self._spans = PhaseSpans(self.data, self.opts)
+        rms_a, _ = anchored_rms_m(self.data, self.opts, pos_a, fixed, anchor_ecef_m, anchors, min_signals=MIN_SIGNALS,
+                                  spans=self._spans)
+        rms_b, _ = anchored_rms_m(self.data, self.opts, pos_b, fixed, anchor_ecef_m, anchors, min_signals=MIN_SIGNALS,
+                                  spans=self._spans)
         ra, rb = rms_a[epochs], rms_b[epochs]
         out[(ra <= ARBITER_MAX_RMS_M) & (rb >= ARBITER_FACTOR * ra)] = 1
         out[(rb <= ARBITER_MAX_RMS_M) & (ra >= ARBITER_FACTOR * rb)] = 2

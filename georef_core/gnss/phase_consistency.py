@@ -75,9 +75,23 @@ def _span_signals(d, lo: int, hi: int, unbroken: np.ndarray) -> np.ndarray:
     return (unbroken[hi + 1] - unbroken[lo] == hi + 1 - lo) & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1])
 
 
+class PhaseSpans:
+    """The filter's observation arrays and the running count of unbroken tracking, built once per solve and
+    shared by every anchored_rms_m call on it (the arbiter compares two candidates on the same arrays)."""
+
+    def __init__(self, data: PreparedData, opts: RtkOptions):
+        flt = RtkFilter(data, opts)
+        self.d, self.cfg = flt.arrays(), flt.config()
+        d = self.d
+        self.zero_amb = np.zeros(self.cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
+        self.unbroken = np.concatenate([np.zeros((1,) + d.obs_ok.shape[1:], np.int64),
+                                        np.cumsum(d.obs_ok, axis=0, dtype=np.int64)])
+
+
 def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray, fixed: np.ndarray,
                    anchor_ecef_m: np.ndarray, anchors: np.ndarray, max_anchors: int = MAX_ANCHORS,
-                   min_signals: int = MIN_SPAN_SIGNALS) -> tuple[np.ndarray, np.ndarray]:
+                   min_signals: int = MIN_SPAN_SIGNALS, spans: PhaseSpans | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """For every `fixed` epoch e: the RMS (m) of the change of DD phase residual (reference-free:
     reference_free_change_rms) between anchor epoch a (at anchor_ecef_m[a]) and e (at
     position_ecef_m[e]), over the signals tracked without a gap or slip from a to e, the median over the
@@ -85,13 +99,11 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
     with the anchors' carrier phase gives the phase noise plus the change of multipath over the span (a
     centimetre or two over minutes on a u-blox walk); a fix that differs from the anchors' in its integers
     gives decimetres.
+    `spans`: the arrays of (data, opts) when the caller already built them (PhaseSpans).
     Returns (rms (E,), NaN where not fixed or no anchor qualifies; number of anchors used (E,))."""
-    flt = RtkFilter(data, opts)
-    d, cfg = flt.arrays(), flt.config()
+    spans = spans or PhaseSpans(data, opts)
+    d, cfg, zero_amb, unbroken = spans.d, spans.cfg, spans.zero_amb, spans.unbroken
     n_e = len(d.time_s)
-    zero_amb = np.zeros(cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
-    unbroken = np.concatenate([np.zeros((1,) + d.obs_ok.shape[1:], np.int64),
-                               np.cumsum(d.obs_ok, axis=0, dtype=np.int64)])
     anchors = np.asarray(anchors, dtype=np.int64)
     out = np.full(n_e, np.nan)
     used = np.zeros(n_e, dtype=np.int64)
