@@ -3,6 +3,10 @@ DJI Timestamp.MRK), never by its name, and load it."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import os
+import warnings
 from dataclasses import dataclass
 
 from ..errors import InputFileError
@@ -63,10 +67,41 @@ class LoadedObservations:
     kind: str
 
 
+_LOADED: contextvars.ContextVar[dict | None] = contextvars.ContextVar("georef_loaded_observations", default=None)
+
+
+@contextlib.contextmanager
+def reuse_loaded_observations():
+    """Within the block, a file loaded twice with the same arguments (and unchanged on disk) is decoded once:
+    a step that inspects a raw log before solving it does not pay for the decoding twice. Nothing is kept
+    after the block. Callers must not modify what load_observations returns."""
+    token = _LOADED.set({})
+    try:
+        yield
+    finally:
+        _LOADED.reset(token)
+
+
 def load_observations(path, approx_gps_time_s: float | None = None, event_edge: str = "falling") -> LoadedObservations:
     """One receiver's observation file. ``approx_gps_time_s`` dates an RTCM 3 stream that carries no
     week number (no ephemeris messages), e.g. a base stream dated by the rover's log. ``event_edge``: the
     TIM-TM2 edge of a UBX log that marks the exposure (ubx.read_ubx)."""
+    memo = _LOADED.get()
+    if memo is None:
+        return _load_observations(path, approx_gps_time_s, event_edge)
+    st = os.stat(path)
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns, approx_gps_time_s, event_edge)
+    if key not in memo:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            memo[key] = (_load_observations(path, approx_gps_time_s, event_edge), caught)
+    loaded, caught = memo[key]
+    for w in caught:   # what the reader said about the file is said to every caller, not only the first
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return loaded
+
+
+def _load_observations(path, approx_gps_time_s: float | None, event_edge: str) -> LoadedObservations:
     kind = sniff_kind(path)
     if kind == "rinex-obs":
         from .rinex_obs import read_rinex_obs

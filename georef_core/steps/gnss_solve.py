@@ -134,6 +134,13 @@ def run_survey_gnss(survey_dir, out_dir, options: dict | None = None, progress=N
     (ratio-test threshold), ``navsys`` ('G,E,...'), ``tdcp_slips`` (m), ``hold_variance`` (cycles²); the summary
     records the engine options used. 'auto' picks dual frequency when the rover records a second band,
     and single-frequency known-start when it does not and survey.json gives the take-off point."""
+    from ..gnss.input_files import reuse_loaded_observations
+
+    with reuse_loaded_observations():     # the band check and the solve decode a raw log once
+        return _run_survey_gnss(survey_dir, out_dir, options, progress, found)
+
+
+def _run_survey_gnss(survey_dir, out_dir, options: dict | None, progress, found) -> dict:
     survey_dir = Path(survey_dir)
     out = Path(out_dir) / "ppk"
     from .contract import get_spec

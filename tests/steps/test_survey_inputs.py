@@ -220,3 +220,45 @@ def test_dji_flight_with_a_base_but_no_raw_log_skips_ppk_with_a_warning(tmp_path
     (survey / "rover").mkdir()
     with pytest.raises(InputFileError, match="no rover observation file"):
         run_survey_gnss(survey, tmp_path / "out2")
+
+
+def test_a_raw_log_is_decoded_once_per_step(tmp_path, monkeypatch):
+    """The band check (_has_second_frequency) and the solve read the same RTCM 3 raw log: decoded once."""
+    from georef_core.gnss import rtcm3
+    from georef_core.steps.gnss_solve import run_survey_gnss
+
+    dji = _gsi_dji_survey(tmp_path / "dji", with_ephemerides=True, with_nav=False)
+    decoded = []
+    real = rtcm3.read_rtcm3
+
+    def counting(path, *a, **k):
+        decoded.append(Path(path).name)
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(rtcm3, "read_rtcm3", counting)
+    s = run_survey_gnss(dji, tmp_path / "out")
+    assert s["events"]["count"] == 3 and s["options"]["n_bands"] == 2
+    rover_reads = [n for n in decoded if n.endswith("PPKRAW.bin")]
+    assert len(rover_reads) == 1, decoded
+
+
+def test_loaded_observations_reused_only_inside_the_block(tmp_path):
+    """reuse_loaded_observations: the same object inside the block, with the reader's warnings said to
+    every caller (a truncated file stays named in the summary); a fresh decode outside it."""
+    import warnings
+
+    from georef_core.gnss.input_files import load_observations, reuse_loaded_observations
+
+    data = (GSI / "07590920.05o").read_bytes()
+    cut = tmp_path / "cut.obs"
+    cut.write_bytes(data[: len(data) // 2])
+    with reuse_loaded_observations():
+        for _ in range(2):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                obj = load_observations(cut)
+            assert any("truncated file" in str(w.message) for w in caught)
+        assert load_observations(cut) is obj
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert load_observations(cut) is not obj
