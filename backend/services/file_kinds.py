@@ -481,54 +481,32 @@ def format_points_csv(points: list[dict]) -> str:
     return buf.getvalue()
 
 
-EVENT_TIME_COLUMNS = ("gps_time_s", "trigger_gps_time_s")
-
-
 def parse_events_csv(text: str) -> list[dict]:
-    rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#")))
-    if not rows:
-        raise ValueError("no rows")
-    header = [h.strip().lower() for h in rows[0]]
-    col = next((header.index(c) for c in EVENT_TIME_COLUMNS if c in header), None)
-    if col is None:
-        raise ValueError("header has no gps_time_s (or trigger_gps_time_s) column")
-    img = header.index("image") if "image" in header else None
-    out = []
-    for n, r in enumerate(rows[1:], 2):
-        try:
-            t = float(r[col])
-        except (ValueError, IndexError):
-            raise ValueError(f"line {n}: event time {r[col] if col < len(r) else ''!r} is not a number") from None
-        out.append({"gps_time_s": t, "image": r[img].strip() if img is not None and img < len(r) else None})
-    if not out:
-        raise ValueError("header only, no event")
-    return out
+    """The core's reading of events.csv (camera_events.parse_event_table); ValueError with its message."""
+    from georef_core.errors import InputFileError
+    from georef_core.gnss.camera_events import parse_event_table
+
+    try:
+        rows = parse_event_table(text, "events.csv")
+    except InputFileError as exc:
+        raise ValueError(f"line {exc.line}: {exc.problem}" if exc.line else exc.problem) from None
+    return [{"gps_time_s": t, "image": image} for t, image in rows]
 
 
 _CRS_LINE = re.compile(r"^(EPSG:\d+|WGS84 UTM \d+[NS]|\+proj=.*)$", re.IGNORECASE)
 
 
 def parse_gcp_list(text: str) -> dict:
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
-        raise ValueError("empty")
-    if not _CRS_LINE.match(lines[0]):
-        raise ValueError(f"line 1: {lines[0][:60]!r} is not a CRS (EPSG:nnnn, WGS84 UTM nnX or +proj=...)")
-    images, points = set(), set()
-    for n, ln in enumerate(lines[1:], 2):
-        f = ln.split()
-        if len(f) < 6:
-            raise ValueError(f"line {n}: {len(f)} fields, at least 6 expected (x y z px py image [name])")
-        try:
-            [float(v) for v in f[:5]]
-        except ValueError:
-            raise ValueError(f"line {n}: coordinates are not numbers") from None
-        images.add(f[5])
-        if len(f) > 6:
-            points.add(f[6])
-    if len(lines) < 2:
-        raise ValueError("a CRS line and no measurement")
-    return {"crs": lines[0], "measurements": len(lines) - 1, "images": sorted(images), "points": sorted(points)}
+    """The core's reading of gcp_list.txt (control_points.parse_gcp_list), summarised for the upload check."""
+    from georef_core.adjustment.control_points import parse_gcp_list as core_parse_gcp_list
+    from georef_core.errors import InputFileError
+
+    try:
+        crs, points, measurements = core_parse_gcp_list(text, "gcp_list.txt")
+    except InputFileError as exc:
+        raise ValueError(f"line {exc.line}: {exc.problem}" if exc.line else exc.problem) from None
+    return {"crs": crs, "measurements": len(measurements), "images": sorted({m.image for m in measurements}),
+            "points": sorted(points)}
 
 
 # ---------------------------------------------------------------------------------------------- images
@@ -696,6 +674,8 @@ def recognise(path, name: str = "") -> Recognised:
             raise UnrecognisedFile(f"points CSV: {exc}") from None
         return Recognised("points", {"points": len(pts), "control": sum(p["role"] == "control" for p in pts),
                                      "check": sum(p["role"] == "check" for p in pts)})
+    from georef_core.gnss.camera_events import EVENT_TIME_COLUMNS
+
     if any(c in low.replace(" ", "").split(",") for c in EVENT_TIME_COLUMNS):
         try:
             ev = parse_events_csv(text)

@@ -141,32 +141,45 @@ def read_gcp_list(path) -> tuple[str, dict[str, GroundPoint], list[ImageMeasurem
     """OpenDroneMap gcp_list.txt -> (crs, points with role 'control', measurements)."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
+        text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputFileError(path, f"cannot read the GCP file ({exc})") from None
-    lines = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
+    return parse_gcp_list(text, path)
+
+
+def parse_gcp_list(text: str, source) -> tuple[str, dict[str, GroundPoint], list[ImageMeasurement]]:
+    """The text of an OpenDroneMap gcp_list.txt (a CRS line, then 'x y z px py image [name]' per
+    measurement) -> (crs, points with role 'control', measurements): the one reading of the format, for the
+    georef step and the upload check alike. Raises InputFileError(source, problem, line)."""
+    name_of = Path(str(source)).name
+    lines = [(k, ln) for k, ln in enumerate(text.splitlines(), start=1)
+             if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
-        raise InputFileError(path, "the GCP file is empty")
-    crs = parse_crs(lines[0], path)
+        raise InputFileError(source, "the GCP file is empty")
+    crs = parse_crs(lines[0][1], source)
+    if len(lines) < 2:
+        raise InputFileError(source, "a CRS line and no measurement")
     points: dict[str, GroundPoint] = {}
     meas = []
     by_coords: dict[tuple, str] = {}
-    for k, ln in enumerate(lines[1:], start=2):
+    for k, ln in lines[1:]:
         tok = ln.split()
         if len(tok) < 6:
-            raise InputFileError(path, f"expected 'x y z px py image [name]', got {ln.strip()!r}", line=k)
+            raise InputFileError(source, f"expected 'x y z px py image [name]', got {ln.strip()[:80]!r}", line=k)
         try:
             xyz = np.array([float(tok[0]), float(tok[1]), float(tok[2])])
             uv = np.array([float(tok[3]), float(tok[4])])
         except ValueError:
-            raise InputFileError(path, "a coordinate is not a number", line=k) from None
+            raise InputFileError(source, "a coordinate is not a number", line=k) from None
+        if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(uv))):
+            raise InputFileError(source, "a coordinate is not a finite number", line=k)
         key = tuple(np.round(xyz, 3))
         name = tok[6] if len(tok) >= 7 else by_coords.get(key, f"gcp{len(by_coords) + 1:02d}")
         by_coords.setdefault(key, name)
         if name in points and np.max(np.abs(points[name].xyz_crs - xyz)) > 1e-3:
-            raise InputFileError(path, f"point {name} is given with two different coordinates", line=k)
+            raise InputFileError(source, f"point {name} is given with two different coordinates", line=k)
         points.setdefault(name, GroundPoint(name, xyz, crs, "control"))
-        meas.append(ImageMeasurement(name, tok[5], uv, f"{path.name}:{k}"))
+        meas.append(ImageMeasurement(name, tok[5], uv, f"{name_of}:{k}"))
     return crs, points, meas
 
 

@@ -68,8 +68,8 @@ def interpolate_at_events(sol, event_time_s, max_gap_s: float | None = None) -> 
 
 
 def read_event_csv(path) -> np.ndarray:
-    """Camera trigger times from a CSV (a column named gps_time_s, or the first numeric column) or from a
-    DJI Timestamp.MRK (its exposure times), recognised by content. Times must be finite."""
+    """Camera trigger times from a CSV (parse_event_table) or from a DJI Timestamp.MRK (its exposure times),
+    recognised by content. Times must be finite."""
     from .dji_mrk import looks_like_mrk, read_mrk
 
     p = Path(path)
@@ -79,23 +79,38 @@ def read_event_csv(path) -> np.ndarray:
         raise InputFileError(p, f"cannot read as text ({exc})") from None
     if looks_like_mrk(text[:4096].encode("utf-8", "replace")):
         return read_mrk(p).gps_time_s.copy()
-    rows = list(csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#")))
+    return np.array([t for t, _ in parse_event_table(text, p)])
+
+
+EVENT_TIME_COLUMNS = ("gps_time_s", "trigger_gps_time_s")
+
+
+def parse_event_table(text: str, source) -> list[tuple[float, str | None]]:
+    """The rows of a camera-trigger CSV as (gps_time_s, image name or None): the time column is gps_time_s
+    (or trigger_gps_time_s), else the first column; an optional `image` column names
+    the photo. The one reading of events.csv, for the gnss step and the upload check alike. Raises
+    InputFileError(source, problem, line)."""
+    numbered = [(n, line) for n, line in enumerate(text.splitlines(), start=1)
+                if line.strip() and not line.startswith("#")]
+    rows = [(n, r) for (n, _), r in zip(numbered, csv.reader(line for _, line in numbered))]
     if not rows:
-        raise InputFileError(p, "no event times")
-    col = 0
-    start = 0
-    if any(not _is_float(v) for v in rows[0]):
-        header = [h.strip().lower() for h in rows[0]]
-        col = header.index("gps_time_s") if "gps_time_s" in header else 0
+        raise InputFileError(source, "no event times")
+    col, img, start = 0, None, 0
+    if any(not _is_float(v) for v in rows[0][1]):
+        header = [h.strip().lower() for h in rows[0][1]]
+        col = next((header.index(c) for c in EVENT_TIME_COLUMNS if c in header), 0)
+        img = header.index("image") if "image" in header else None
         start = 1
     out = []
-    for n, r in enumerate(rows[start:], start + 1):
+    for n, r in rows[start:]:
         if col >= len(r) or not _is_float(r[col]):
-            raise InputFileError(p, f"event time {r[col] if col < len(r) else ''!r} is not a number", n)
+            raise InputFileError(source, f"event time {r[col] if col < len(r) else ''!r} is not a number", n)
         if not np.isfinite(float(r[col])):
-            raise InputFileError(p, f"event time {r[col].strip()!r} is not a finite number", n)
-        out.append(float(r[col]))
-    return np.array(out)
+            raise InputFileError(source, f"event time {r[col].strip()!r} is not a finite number", n)
+        out.append((float(r[col]), r[img].strip() if img is not None and img < len(r) and r[img].strip() else None))
+    if not out:
+        raise InputFileError(source, "a header and no event")
+    return out
 
 
 def _is_float(v: str) -> bool:

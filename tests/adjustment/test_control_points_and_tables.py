@@ -197,3 +197,40 @@ def test_upload_check_and_georef_step_read_points_csv_alike(tmp_path):
     assert err.value.line == 3
     with _pytest.raises(ValueError, match="line 3: z 'ninety' is not a number"):
         parse_points_csv(bad)
+
+
+def test_upload_check_and_steps_read_gcp_list_and_events_alike(tmp_path):
+    """One reading of gcp_list.txt and events.csv (issue 24): the upload check uses the core's parsers, so
+    what it accepts the steps read, with the same rows, and what a step refuses is refused at upload with
+    the same words (the upload check used to accept NaN trigger times and any CRS-looking first line)."""
+    import pytest as _pytest
+
+    from backend.services.file_kinds import parse_events_csv, parse_gcp_list
+    from georef_core.gnss.camera_events import read_event_csv
+
+    gcp = "WGS84 UTM 11N\n# a comment\n500010.0 3700020.0 101.5 100.5 200.25 IMG_1.jpg\n" \
+          "500050.0 3700060.0 99.0 50.0 60.0 IMG_2.jpg gcp_b\n"
+    (tmp_path / "gcp_list.txt").write_text(gcp)
+    crs, points, meas = read_gcp_list(tmp_path / "gcp_list.txt")
+    summary = parse_gcp_list(gcp)
+    assert summary == {"crs": crs, "measurements": len(meas), "images": ["IMG_1.jpg", "IMG_2.jpg"],
+                       "points": sorted(points)}
+    assert meas[1].source == "gcp_list.txt:4"            # the file's own line number, comments counted
+    with _pytest.raises(ValueError, match="line 3: a coordinate is not a finite number"):
+        parse_gcp_list(gcp.replace("101.5", "nan"))
+    with _pytest.raises(ValueError, match="unknown coordinate reference system"):
+        parse_gcp_list(gcp.replace("WGS84 UTM 11N", "EPSG:999999"))
+
+    # a trigger_gps_time_s column that is not the first: both read it, with the image names
+    ev = "image,trigger_gps_time_s\nDJI_0001.JPG,1400000000.25\nDJI_0002.JPG,1400000002.5\n"
+    (tmp_path / "events.csv").write_text(ev)
+    np.testing.assert_array_equal(read_event_csv(tmp_path / "events.csv"), [1400000000.25, 1400000002.5])
+    assert parse_events_csv(ev) == [{"gps_time_s": 1400000000.25, "image": "DJI_0001.JPG"},
+                                    {"gps_time_s": 1400000002.5, "image": "DJI_0002.JPG"}]
+    bad = ev.replace("1400000002.5", "inf")
+    (tmp_path / "events.csv").write_text(bad)
+    with _pytest.raises(InputFileError, match="'inf' is not a finite number") as err:
+        read_event_csv(tmp_path / "events.csv")
+    assert err.value.line == 3
+    with _pytest.raises(ValueError, match="line 3: event time 'inf' is not a finite number"):
+        parse_events_csv(bad)
