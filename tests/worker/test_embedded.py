@@ -5,21 +5,12 @@ from __future__ import annotations
 
 import time
 
-import pytest
 
-from ..backend.platform_helpers import (Api, add_user, close_platform, make_platform, start_worker, upload_bytes,
-                                        wait_run, zip_folder)
+from ..backend.platform_helpers import Api, add_user, start_worker, upload_bytes, wait_run, zip_folder
 
 
-@pytest.fixture
-def embedded(tmp_path):
-    p = make_platform(tmp_path, "embedded", queue="emb")
-    yield p
-    close_platform(p)
-
-
-def test_embedded_run(embedded, small_survey):
-    p = embedded
+def test_embedded_run(platform, small_survey):
+    p = platform("embedded", queue="emb")
     assert p.settings.resolved_database_url().startswith("sqlite:")
     assert p.settings.resolved_broker_url().startswith("sqla+sqlite:")
     add_user(p, "emb@example.org", org_admin=True)

@@ -10,8 +10,7 @@ import subprocess
 
 import pytest
 
-from ..backend.platform_helpers import (PY, REPO, Api, add_user, close_platform, make_platform, start_worker,
-                                        upload_bytes, wait_run, zip_folder)
+from ..backend.platform_helpers import PY, REPO, Api, add_user, start_worker, upload_bytes, wait_run, zip_folder
 
 pytest.importorskip("pycolmap")
 
@@ -29,15 +28,8 @@ def photo_survey(tmp_path_factory):
     return out
 
 
-@pytest.fixture
-def embedded(tmp_path):
-    p = make_platform(tmp_path, "embedded", queue="photos")
-    yield p
-    close_platform(p)
-
-
-def test_photos_alone_through_the_api(embedded, photo_survey):
-    p = embedded
+def test_photos_alone_through_the_api(platform, photo_survey):
+    p = platform("embedded", queue="photos")
     add_user(p, "photos@example.org", org_admin=True)
     api = Api(p, "photos@example.org")
     meta = json.loads((photo_survey / "survey.json").read_text())

@@ -8,27 +8,16 @@ import re
 import signal
 import time
 
-import pytest
 from sqlalchemy import func, select
 
 from backend.models import RunOutput, RunStep
 
-from ..backend.platform_helpers import (Api, add_user, close_platform, have_postgres, have_redis, make_platform,
-                                        start_worker, stop_worker, upload_bytes, wait_run, zip_folder)
+from ..backend.platform_helpers import Api, add_user, start_worker, stop_worker, upload_bytes, wait_run, zip_folder
 
 
-@pytest.fixture
-def crash_platform(tmp_path):
-    if not (have_postgres() and have_redis()):
-        pytest.skip("PostgreSQL (127.0.0.1:5432) and Redis (127.0.0.1:6379) are needed")
-    p = make_platform(tmp_path, "postgres", queue="crash", step_lease_s=3, requeue_queued_after_s=600,
-                      visibility_timeout_s=5, broker_restore_interval_s=1)
-    yield p
-    close_platform(p)
-
-
-def test_killed_worker_mid_step(crash_platform, small_survey):
-    p = crash_platform
+def test_killed_worker_mid_step(platform, small_survey):
+    p = platform("postgres", queue="crash", step_lease_s=3, requeue_queued_after_s=600, visibility_timeout_s=5,
+                 broker_restore_interval_s=1)
     add_user(p, "crash@example.org", org_admin=True)
     api = Api(p, "crash@example.org")
     site = api.post("/api/v1/sites", json={"name": "S", "crs": "EPSG:32653"}).json()
