@@ -53,6 +53,9 @@ class PpkSolution:
     options: RtkOptions
     event_time_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     fix_conflicts: np.ndarray | None = None
+    # where the base position came from and its uncertainty (base_position_basis): every PPK position shares
+    # the base position's error
+    base_position_basis: dict = field(default_factory=dict)
     input_paths: dict[str, list[str]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -112,11 +115,30 @@ def _averaged_spp_note(path: str, avg: AveragedPosition, receiver_fix: np.ndarra
     return text
 
 
-def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult | None) -> tuple[np.ndarray, list[str]]:
+# The uncertainty of a base position that is not surveyed, beyond what its own data show. An averaged
+# single-point position carries the broadcast ionosphere, troposphere, orbit and clock errors common to all
+# its epochs, which averaging does not reduce: taken as 1 m horizontally and 2 m vertically (an assumption of
+# order of magnitude for single-frequency broadcast models, added in quadrature to the sigma of the mean; on
+# the shared u-blox walk the averaged base was 2.8 m from its surveyed position). A receiver's own navigation
+# fixes: 2.5 m horizontally, 5 m vertically (a standalone receiver's usual specification, 2.5 m CEP).
+SPP_COMMON_SIGMA_ENU_M = (1.0, 1.0, 2.0)
+RECEIVER_FIX_SIGMA_ENU_M = (2.5, 2.5, 5.0)
+
+
+def base_position_basis(source: str, sigma_enu_m=None, text: str = "") -> dict:
+    """What the summary says of the base position: its source ('given', 'rinex-header', 'rtcm-station',
+    'averaged-single-point', 'receiver-fixes'), its 1-sigma E/N/U uncertainty when Georef can state one (None
+    for a surveyed or given position: its accuracy is the survey's) and a sentence."""
+    return {"source": source, "sigma_enu_m": None if sigma_enu_m is None else [round(float(v), 3) for v in sigma_enu_m],
+            "text": text}
+
+
+def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult | None
+                   ) -> tuple[np.ndarray, list[str], dict]:
     """The base antenna position, from the best source available: --base-pos > the header's position (RINEX
     APPROX POSITION XYZ plus ANTENNA: DELTA H/E/N, or an RTCM station record) > the averaged single-point
     solution of the base log (average_spp_positions) > the receiver's own fixes recorded in the log (UBX).
-    The note names the source and the file."""
+    The note names the source and the file; the basis (base_position_basis) says how uncertain it is."""
     notes = []
     header = base.header
     source = _header_position_source(header)
@@ -128,6 +150,7 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
                                     base_spp.valid)
     if opts.base_position_ecef_m is not None:
         pos = np.array(opts.base_position_ecef_m, dtype=float)
+        basis = base_position_basis("given", None, "the base position given in the settings (--base-pos)")
     elif _header_position_is_surveyed(header):
         pos = np.array(header.approx_position_ecef_m, dtype=float)
         # the header position is the marker; the antenna reference point is ANTENNA: DELTA H/E/N above it
@@ -139,11 +162,21 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
                  "rtcm-station": "the reference station record (RTCM 3 1005/1006)"}.get(source, "the header")
         notes.append(f"base position taken from {where} of {base.source_path}"
                      + (f" (plus its antenna delta H/E/N {h:.4f}/{east:.4f}/{north:.4f} m)" if h or east or north else ""))
+        basis = base_position_basis(source or "rinex-header", None,
+                                    f"the base position in {where} of {Path(base.source_path).name}, taken as "
+                                    "surveyed (its accuracy is the survey's)")
     elif avg is not None:
         pos = avg.position_ecef_m.copy()
         notes.append(_averaged_spp_note(base.source_path, avg, receiver_fix))
+        sigma = np.hypot(avg.sigma_mean_enu_m, SPP_COMMON_SIGMA_ENU_M)
+        basis = base_position_basis("averaged-single-point", sigma,
+                                    f"an averaged single-point position of the base log {Path(base.source_path).name}"
+                                    " (not surveyed)")
     elif receiver_fix is not None:
         pos = receiver_fix
+        basis = base_position_basis("receiver-fixes", RECEIVER_FIX_SIGMA_ENU_M,
+                                    f"the base receiver's own navigation fixes in {Path(base.source_path).name} "
+                                    "(not surveyed)")
         notes.append(f"{base.source_path}: no base position given (--base-pos) nor in a RINEX header, and no "
                      "single-point solution of the base log; using the median of the receiver's own navigation fixes "
                      "recorded in the log (metre-level, not a surveyed position: the whole trajectory shifts by its "
@@ -154,7 +187,7 @@ def _base_position(base: ObservationSet, opts: RtkOptions, base_spp: SppResult |
     if any(opts.base_antenna_delta_enu_m):
         lat, lon, _ = ecef_to_geodetic(pos)
         pos = pos + ecef_to_enu_rotation(lat, lon).T @ np.asarray(opts.base_antenna_delta_enu_m)
-    return pos, notes
+    return pos, notes, basis
 
 
 def _unflagged_slips(rover, rsat, position_ecef_m, trop_m, iono_m, lam, base_phase_res_m, flagged, sat_ids,
@@ -218,7 +251,7 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
         if start is None:
             start = np.median(spp.position_ecef_m[spp.valid], axis=0)
         base_spp = solve_spp(base, bsat, nav, opts, start)
-    base_pos, notes = _base_position(base, opts, base_spp)
+    base_pos, notes, base_basis = _base_position(base, opts, base_spp)
     baseline_m = float(np.median(np.linalg.norm(spp.position_ecef_m[spp.valid] - base_pos, axis=1)))
     if baseline_m > opts.max_baseline_km * 1e3:
         raise ProcessingError(f"base {base.source_path} is {baseline_m / 1e3:.0f} km from the rover (limit "
@@ -273,7 +306,8 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
         rover_iono_m=iono, rover_elevation_rad=el, rover_usable=usable,
         base_phase_res_m=aligned.phase_res_m, base_code_res_m=aligned.code_res_m, age_s=aligned.age_s,
         slip_cum=slip_cum, half_cycle=half, spp_position_ecef_m=spp.position_ecef_m,
-        spp_covariance_m2=spp.covariance_ecef_m2, spp_valid=spp.valid, baseline_m=baseline_m)
+        spp_covariance_m2=spp.covariance_ecef_m2, spp_valid=spp.valid, baseline_m=baseline_m,
+        base_position_basis=base_basis)
     timings["prepare"] = _time.perf_counter() - t0
     return data, spp, base_pos, notes, timings, rover
 
@@ -376,7 +410,7 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
         covariance_ecef_m2=out.covariance_ecef_m2, velocity_ecef_m_s=vel, velocity_covariance_m2_s2=vcov,
         n_sats=out.n_sats, ratio=out.ratio, age_s=data.age_s, residuals_m=out.residuals_m, sat_ids=data.sat_ids,
         base_position_ecef_m=base_pos, options=opts, event_time_s=np.asarray(rover.event_gps_time_s, dtype=float),
-        fix_conflicts=conflicts, input_paths={"rover": [rover_raw.source_path], "base": [base_raw.source_path],
+        fix_conflicts=conflicts, base_position_basis=data.base_position_basis, input_paths={"rover": [rover_raw.source_path], "base": [base_raw.source_path],
                                               "nav": list(nav.source_paths)},
         warnings=notes, timings_s=timings)
     return sol

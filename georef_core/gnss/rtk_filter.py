@@ -15,7 +15,7 @@ tests, fix validation, fix-and-hold; ambiguity_kernels.py and lambda_kernels.py:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -74,6 +74,9 @@ class PreparedData:
     spp_covariance_m2: np.ndarray   # (E, 3, 3)
     spp_valid: np.ndarray           # (E,)
     baseline_m: float
+    # where the base position came from and its uncertainty (ppk.base_position_basis): not used by the filter,
+    # carried to the solution's summary
+    base_position_basis: dict = field(default_factory=dict)
 
 
 @dataclass

@@ -194,13 +194,19 @@ def _survey_events(path: Path) -> dict[str, float]:
     return {r["image"]: float(r[key]) for r in rows}
 
 
+def _ppk_summary(out: Path) -> dict:
+    """OUT_DIR/ppk/summary.json, {} when there is none (or it cannot be read)."""
+    try:
+        s = json.loads((out / "ppk" / "summary.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return s if isinstance(s, dict) else {}
+
+
 def _ppk_exif_offset(out: Path) -> float | None:
     """The EXIF clock offset the PPK of OUT_DIR/ppk took its trigger times with (ppk/summary.json), None when
     its triggers did not come from EXIF times."""
-    try:
-        v = json.loads((out / "ppk" / "summary.json").read_text()).get("exif_time_offset_s")
-    except (OSError, ValueError, AttributeError):
-        return None
+    v = _ppk_summary(out).get("exif_time_offset_s")
     return None if v is None else float(v)
 
 
@@ -279,8 +285,11 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     return gnss
 
 
-def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: ControlData, gnss_enu: dict) -> dict:
-    """What the result's absolute position rests on, in words and figures, for the summary (and the UI)."""
+def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: ControlData, gnss_enu: dict,
+                       base_position: dict | None = None) -> dict:
+    """What the result's absolute position rests on, in words and figures, for the summary (and the UI).
+    ``base_position``: the PPK summary's base_position (its source and sigma): PPK camera positions are
+    relative to the base, so all of them, and the survey with them, share the base position's error."""
     used = list(adj.stats.get("control_points_used") or [])
     n_cp = len(used)
     basis, text = [], []
@@ -299,9 +308,23 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
                       "median_sigma_m": {"horizontal": round(sh, 4), "vertical": round(sv, 4)}})
         text.append(f"{len(used_gnss)} {kind} ({gnss.source}; stated sigma {_metres(sh)} horizontally, "
                     f"{_metres(sv)} vertically, median per photo)")
+    base_sigma = None
+    if gnss is not None and not gnss.from_photos and used_gnss and base_position:
+        base_sigma = base_position.get("sigma_enu_m")
+        basis.append({"kind": "base position", "source": base_position.get("source"), "sigma_enu_m": base_sigma})
+        text.append("the base position they are relative to: " + str(base_position.get("text") or
+                                                                    base_position.get("source")))
     if not basis:
         return {"basis": [], "text": "no absolute reference"}
     lead = "the survey's absolute position rests on " + " and ".join(text)
+    if base_sigma is not None:
+        e, n, u = (float(v) for v in base_sigma)
+        lead += (f". The base position is uncertain by {_metres(float(np.hypot(e, n)))} horizontally and "
+                 f"{_metres(u)} vertically (1 sigma): every PPK camera position shares that error, so the PPK "
+                 "sigmas above describe the survey's shape, not its absolute position"
+                 + ("; the control points tie it to the ground" if n_cp else
+                    ": with no control point the whole survey is shifted by the base position's error. Give the "
+                    "base's surveyed position (--base-pos) or a control point"))
     if not n_cp and gnss is not None and gnss.from_photos:
         lead += (": no control point ties it to the ground, so its absolute accuracy is that of the photo positions "
                  "at their stated sigma, and worse on the ground where the block is small (its tilt rests on the "
@@ -544,7 +567,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     t0 = time.perf_counter()
     summary = _write_outputs(out, image_dir, opts, frame, rec, control, result, gnss, warnings, cameras)
     summary["images"]["left_out"] = left_out
-    summary["absolute_accuracy"] = _absolute_accuracy(gnss, result, control, gnss_enu)
+    summary["absolute_accuracy"] = _absolute_accuracy(gnss, result, control, gnss_enu,
+                                                      _ppk_summary(out).get("base_position"))
     summary["inputs"] = found.summary()
     summary["target_refinement"] = target_refinement
     summary["rolling_shutter"] = dict(shutters[0])

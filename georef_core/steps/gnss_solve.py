@@ -43,6 +43,8 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
         # unless the carrier phase decided between them
         "fix_conflicts": int(np.sum(sol.fix_conflicts)) if sol.fix_conflicts is not None else 0,
         "base_position_ecef_m": [round(float(v), 4) for v in sol.base_position_ecef_m],
+        # where it came from and how uncertain: every position of the solution shares its error
+        "base_position": dict(sol.base_position_basis),
         "outputs": {"pos": str(out_pos), "parquet": str(parquet_path)},
         "timings_s": {k: round(v, 3) for k, v in sol.timings_s.items()},
         "warnings": sol.warnings,

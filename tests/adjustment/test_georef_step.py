@@ -81,6 +81,42 @@ def test_outputs_and_check_point_table(survey, first_run):
         assert (out / name).is_file(), name
     # paths in the summary are relative to the run folder (a moved run folder stays valid)
     assert not any(Path(v).is_absolute() for v in summary["outputs"].values())
+    # the base position of the PPK (the simulated base's RINEX header) is named as what the survey rests on
+    basis = {b["kind"]: b for b in summary["absolute_accuracy"]["basis"]}
+    assert basis["base position"] == {"kind": "base position", "source": "rinex-header", "sigma_enu_m": None}
+    assert "taken as surveyed" in summary["absolute_accuracy"]["text"]
+
+
+def test_an_unsurveyed_base_position_is_stated_as_the_surveys_absolute_uncertainty():
+    """PPK relative to a base whose position is an averaged single-point solution: the absolute-accuracy
+    statement gives the base position's sigma and says that the whole survey shifts with it (the per-photo
+    PPK sigmas, centimetres, describe the shape only); with control points, that they tie it."""
+    from types import SimpleNamespace
+
+    from georef_core.adjustment.control_points import ControlData, GroundPoint
+    from georef_core.steps.georef import ImageGnss, _absolute_accuracy
+
+    n = 4
+    gnss = ImageGnss(names=[f"i{k}" for k in range(n)], trigger_gps_time_s=np.arange(n, dtype=float),
+                     position_ecef_m=np.zeros((n, 3)), velocity_ecef_m_s=np.zeros((n, 3)),
+                     sd_ecef_m=np.full((n, 3), 0.01), status=np.ones(n, int), source="PPK (test)")
+    gnss_enu = {f"i{k}": (None, None, np.diag([1e-4, 1e-4, 2.25e-4])) for k in range(n)}
+    adj = SimpleNamespace(gnss_rows=[{"image": f"i{k}"} for k in range(n)], stats={"control_points_used": []})
+    base = {"source": "averaged-single-point", "sigma_enu_m": [0.6, 0.8, 2.1],
+            "text": "an averaged single-point position of the base log base.ubx (not surveyed)"}
+    acc = _absolute_accuracy(gnss, adj, ControlData(), gnss_enu, base)
+    assert {b["kind"] for b in acc["basis"]} == {"PPK camera positions", "base position"}
+    assert "uncertain by 1.0 m horizontally and 2.1 m vertically" in acc["text"]
+    assert "shifted by the base position's error" in acc["text"] and "base.ubx" in acc["text"]
+    control = ControlData()
+    control.points["A"] = GroundPoint("A", np.zeros(3), "EPSG:32633", "control")
+    adj.stats["control_points_used"] = ["A"]
+    assert "the control points tie it" in _absolute_accuracy(gnss, adj, control, gnss_enu, base)["text"]
+    # a surveyed base (no sigma stated): named, no metre-level claim
+    surveyed = {"source": "given", "sigma_enu_m": None, "text": "the base position given in the settings"}
+    text = _absolute_accuracy(gnss, SimpleNamespace(gnss_rows=adj.gnss_rows, stats={}), ControlData(), gnss_enu,
+                              surveyed)["text"]
+    assert "given in the settings" in text and "uncertain by" not in text
 
 
 def test_switching_control_and_check_reuses_matching(survey, first_run, tmp_path):

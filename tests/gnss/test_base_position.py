@@ -13,7 +13,7 @@ import pytest
 from georef_core.errors import ProcessingError
 from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic, geodetic_to_ecef_m
 from georef_core.gnss.observations import ReceiverHeader
-from georef_core.gnss.ppk import _base_position, solve
+from georef_core.gnss.ppk import RECEIVER_FIX_SIGMA_ENU_M, SPP_COMMON_SIGMA_ENU_M, _base_position, solve
 from georef_core.gnss.rinex_nav import read_rinex_nav
 from georef_core.gnss.rinex_obs import read_rinex_obs
 from georef_core.gnss.rtk_options import RtkOptions
@@ -127,32 +127,38 @@ def test_base_position_source_order_and_notes():
     opts = RtkOptions()
     # a UBX base: the receiver's fixes are not a header position; the averaged single-point solution wins
     ubx_header = ReceiverHeader(approx_position_ecef_m=fixes, approx_position_source="receiver-fixes")
-    p, notes = _base_position(_fake_base(ubx_header, t), opts, spp)
+    p, notes, basis = _base_position(_fake_base(ubx_header, t), opts, spp)
     assert np.linalg.norm(p - SITE) < 1.0
     (note,) = notes
+    # its stated uncertainty: the sigma of the mean and the broadcast models' common error, in quadrature
+    avg = average_spp_positions(t, pos, cov)
+    assert basis["source"] == "averaged-single-point" and "not surveyed" in basis["text"]
+    np.testing.assert_allclose(basis["sigma_enu_m"], np.hypot(avg.sigma_mean_enu_m, SPP_COMMON_SIGMA_ENU_M), atol=1e-3)
     assert "averaged single-point" in note and "base-x.ubx" in note and "RINEX header" not in note.split(";")[1]
     assert "sigma of the mean" in note and "Scatter of single epochs" in note and "formal" in note
     assert "independent 300 s blocks" in note and "metre-level" in note and "receiver's own fixes" in note
     # no single-point solution: the receiver's own fixes, named as such
-    p, (note,) = _base_position(_fake_base(ubx_header, t), opts, None)
+    p, (note,), basis = _base_position(_fake_base(ubx_header, t), opts, None)
     np.testing.assert_allclose(p, fixes)
     assert "receiver's own navigation fixes" in note and "base-x.ubx" in note
+    assert basis["source"] == "receiver-fixes" and basis["sigma_enu_m"] == list(RECEIVER_FIX_SIGMA_ENU_M)
     # --base-pos first, silently
     given = SITE + np.array([0.1, 0.2, 0.3])
-    p, notes = _base_position(_fake_base(ubx_header, t), RtkOptions(base_position_ecef_m=tuple(given)), spp)
+    p, notes, basis = _base_position(_fake_base(ubx_header, t), RtkOptions(base_position_ecef_m=tuple(given)), spp)
     np.testing.assert_allclose(p, given)
-    assert notes == []
+    assert notes == [] and basis["source"] == "given" and basis["sigma_enu_m"] is None
     # a RINEX header (the field unset, as the RINEX reader leaves it) comes before the single-point solution
     rinex_header = ReceiverHeader(approx_position_ecef_m=fixes, rinex_version=3.04)
-    p, (note,) = _base_position(_fake_base(rinex_header, t, "base.obs"), opts, spp)
+    p, (note,), basis = _base_position(_fake_base(rinex_header, t, "base.obs"), opts, spp)
     np.testing.assert_allclose(p, fixes)
     assert note == "base position taken from the RINEX header of base.obs"
+    assert basis["source"] == "rinex-header" and basis["sigma_enu_m"] is None and "surveyed" in basis["text"]
     rtcm_header = ReceiverHeader(approx_position_ecef_m=fixes, rinex_version=None, approx_position_source="rtcm-station")
-    p, (note,) = _base_position(_fake_base(rtcm_header, t, "base.rtcm3"), opts, spp)
+    p, (note,), _ = _base_position(_fake_base(rtcm_header, t, "base.rtcm3"), opts, spp)
     np.testing.assert_allclose(p, fixes)
     assert "RTCM 3 1005/1006" in note and "base.rtcm3" in note
     # a position from a header of unstated origin (older readers): used as before
-    p, (note,) = _base_position(_fake_base(ReceiverHeader(approx_position_ecef_m=fixes), t), opts, spp)
+    p, (note,), _ = _base_position(_fake_base(ReceiverHeader(approx_position_ecef_m=fixes), t), opts, spp)
     np.testing.assert_allclose(p, fixes)
     assert note == "base position taken from the header of base-x.ubx"
     # nothing at all
