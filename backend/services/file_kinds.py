@@ -93,15 +93,16 @@ def _decompressed_head(path: Path, raw: bytes) -> tuple[bytes, str | None]:
                     raise UnrecognisedFile(f"gzip data is corrupt ({exc})") from None
         return out, "gzip"
     if raw[:2] == b"\x1f\x9d":
-        import unlzw3
+        from georef_core.errors import InputFileError
+        from georef_core.gnss.compressed_files import unix_uncompress
 
         size = path.stat().st_size
         if size > 512 * 1024**2:
             raise UnrecognisedFile("Unix-compress (.Z) file larger than 512 MB; please send it uncompressed or gzip")
-        try:
-            return unlzw3.unlzw(path.read_bytes())[:HEAD_BYTES], "compress"
-        except Exception as exc:
-            raise UnrecognisedFile(f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+        try:   # only the head is unpacked: bounded work whatever the file's size
+            return unix_uncompress(path.read_bytes(), path, limit=HEAD_BYTES), "compress"
+        except InputFileError as exc:
+            raise UnrecognisedFile(exc.problem) from None
     return raw, None
 
 
@@ -112,9 +113,19 @@ def _iter_text_lines(path: Path, packing: str | None):
         with gzip.open(path, "rt", encoding="latin-1", newline="") as f:
             yield from f
     elif packing == "compress":
-        import unlzw3
+        import tempfile
 
-        yield from io.StringIO(unlzw3.unlzw(path.read_bytes()).decode("latin-1"))
+        import ncompress
+
+        # unpacked into a temporary file (C decoder, ~40 MB/s), read line by line: bounded memory
+        with tempfile.TemporaryFile() as tmp:
+            try:
+                with open(path, "rb") as src:
+                    ncompress.decompress(src, tmp)
+            except (ValueError, OSError, EOFError) as exc:
+                raise UnrecognisedFile(f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+            tmp.seek(0)
+            yield from io.TextIOWrapper(tmp, encoding="latin-1", newline="")
     else:
         with open(path, "rt", encoding="latin-1", newline="") as f:
             yield from f

@@ -65,6 +65,8 @@ def parse_crs(text: str, path=None) -> str:
         zone, hemi = int(m.group(1)), m.group(2).upper()
         t = f"EPSG:{(32600 if hemi == 'N' else 32700) + zone}"
     try:
+        if not t or t[0] in "0123456789+-." and not t.startswith("+proj"):
+            raise CRSError("a number, not a CRS")   # a measurement line where the CRS line should be: no lookup
         CRS.from_user_input(t)
     except CRSError:
         raise InputFileError(path or "<crs>", f"unknown coordinate reference system {text.strip()!r} "

@@ -28,20 +28,51 @@ def read_bytes(path) -> bytes:
             except (OSError, EOFError, zlib.error) as exc:
                 raise InputFileError(p, f"gzip data is truncated or corrupt ({exc})") from None
         elif data[:2] == _COMPRESS_MAGIC:
-            try:
-                import unlzw3
-
-                data = unlzw3.unlzw(data)
-            except Exception as exc:  # unlzw3 raises plain ValueError/IndexError on corrupt input
-                raise InputFileError(p, f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+            data = unix_uncompress(data, p)
         else:
             break
     return data
 
 
+class _Enough(Exception):
+    pass
+
+
+class _CappedSink:
+    """A file-like sink that keeps the first ``limit`` bytes written and then stops the writer."""
+
+    def __init__(self, limit: int | None):
+        self.data = bytearray()
+        self.limit = limit
+
+    def write(self, chunk) -> int:
+        self.data += chunk
+        if self.limit is not None and len(self.data) >= self.limit:
+            raise _Enough
+        return len(chunk)
+
+
+def unix_uncompress(data: bytes, path, limit: int | None = None) -> bytes:
+    """Unpack Unix compress (.Z, LZW) data with ncompress (C, ~40 MB/s; the pure-Python decoder used before
+    took 3 s per 1.5 MB). ``limit``: stop once that many bytes are unpacked (a head for recognising a file
+    costs what the head costs, whatever the file's size). Corrupt data raises InputFileError naming ``path``."""
+    import io
+
+    import ncompress
+
+    sink = _CappedSink(limit)
+    try:
+        ncompress.decompress(io.BytesIO(data), sink)
+    except _Enough:
+        pass
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputFileError(path, f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+    return bytes(sink.data if limit is None else sink.data[:limit])
+
+
 def read_head_bytes(path, n: int = 65536) -> bytes:
-    """The first ``n`` bytes of the unpacked content: only those are read of a plain or gzip file (a large
-    log is recognised without reading it whole); a Unix-compress file is unpacked whole."""
+    """The first ``n`` bytes of the unpacked content: only those are read and unpacked of a plain, gzip or
+    Unix-compress file (a large log is recognised without unpacking it whole)."""
     p = Path(path)
     if not p.is_file():
         return read_bytes(p)[:n]          # raises the "not found" / "is a folder" error
@@ -55,7 +86,8 @@ def read_head_bytes(path, n: int = 65536) -> bytes:
             raise InputFileError(p, f"gzip data is truncated or corrupt ({exc})") from None
         return read_bytes(p)[:n] if data[:2] in (_GZIP_MAGIC, _COMPRESS_MAGIC) else data
     if magic == _COMPRESS_MAGIC:
-        return read_bytes(p)[:n]
+        data = unix_uncompress(p.read_bytes(), p, limit=n)
+        return read_bytes(p)[:n] if data[:2] in (_GZIP_MAGIC, _COMPRESS_MAGIC) else data
     with open(p, "rb") as f:
         return f.read(n)
 

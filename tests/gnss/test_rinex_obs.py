@@ -882,3 +882,23 @@ def test_rinex2_compiled_scan_matches_python_scan_on_damaged_files(tmp_path, mon
         np.testing.assert_array_equal(a.epoch_flags, b.epoch_flags)
         np.testing.assert_array_equal(a.event_gps_time_s, b.event_gps_time_s)
     assert outcomes["read"] > 25 and outcomes["error"] > 25    # both kinds of outcome were exercised (50, 100)
+
+
+def test_unix_compress_head_is_unpacked_alone_and_corruption_is_named(tmp_path):
+    """A .Z file: recognising it unpacks only its head (a file whose tail is corrupt is still recognised;
+    reading it whole names the corruption and the file), and the head is byte-identical to the plain file's."""
+    from georef_core.gnss.compressed_files import read_bytes, read_head_bytes
+    from georef_core.gnss.input_files import sniff_kind
+
+    plain = (FIXTURES / "SEPT265G_head10.21O").read_bytes() * 8
+    packed = _pack(plain, "Z")
+    bad = tmp_path / "cut.21O.Z"
+    bad.write_bytes(packed[: len(packed) // 2] + b"\xff" * 64)     # garbage from the middle on
+    assert read_head_bytes(bad, 4096) == plain[:4096]
+    assert sniff_kind(bad) == "rinex-obs"
+    with pytest.raises(InputFileError, match=r"Unix-compress \(\.Z\) data is truncated or corrupt") as exc:
+        read_bytes(bad)
+    assert "cut.21O.Z" in str(exc.value)
+    good = tmp_path / "ok.21O.Z"
+    good.write_bytes(packed)
+    assert read_bytes(good) == plain and read_head_bytes(good, 100) == plain[:100]
