@@ -6,7 +6,12 @@ run_step(run_id, step):
   input hash (settings + checksums) -> reuse an identical earlier result, or call the step with a
   progress callback (throttled DB writes; raises StepCancelled when the run was cancelled) while a
   heartbeat thread proves the worker alive -> store new/changed files content-addressed -> record
-  outputs and queue the next step in one transaction (fenced by the attempt number) -> send."""
+  outputs and queue the next step in one transaction (fenced by the attempt number) -> send.
+
+A step that can run as parts (contract.Split, docs/architecture.md) is planned under its claim; when the plan
+has more than one part, the plan's files and the parts are recorded and each part is sent as
+run_part(run_id, step, index): claimed, materialised in a folder of its own, run, its files stored, fenced
+like a step. The last part queues the step again; that claim merges the parts and finishes the step."""
 
 from __future__ import annotations
 
@@ -25,7 +30,7 @@ from celery import shared_task
 from sqlalchemy.exc import OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 
-from backend.core.queue import send_step, send_webhook
+from backend.core.queue import send_part, send_step, send_webhook
 from backend.core.settings import get_settings
 from backend.db.session import get_database
 from backend.services import jobs, steps_catalog
@@ -77,6 +82,8 @@ def _send(settings, db, storage, messages: list[tuple]) -> None:
     for m in messages:
         if m[0] == "step":
             send_step(settings, m[1], m[2])
+        elif m[0] == "part":
+            send_part(settings, m[1], m[2], m[3])
         elif m[0] == "webhook":
             send_webhook(settings, m[1])
         elif m[0] == "run-finished":
@@ -91,7 +98,10 @@ def _relevant(path: str, prefixes: tuple[str, ...]) -> bool:
     return "" in prefixes or any(path == p or path.startswith(p) for p in prefixes) or not prefixes
 
 
-def materialise(storage, run: dict, step: str, run_dir: Path) -> tuple[Path, Path]:
+def materialise(storage, run: dict, step: str, run_dir: Path, part: int | None = None) -> tuple[Path, Path]:
+    """The survey's files and the run's recorded outputs the step reads, in run_dir/survey and run_dir/out.
+    A split step's own recorded files (its plan's; and its parts' for the merge) are given to it too; a
+    part (``part``: its index) gets the plan's files and none of the other parts'."""
     info = steps_catalog.BY_NAME[step]
     survey_dir, out_dir = run_dir / "survey", run_dir / "out"
     survey_dir.mkdir(parents=True, exist_ok=True)
@@ -110,7 +120,8 @@ def materialise(storage, run: dict, step: str, run_dir: Path) -> tuple[Path, Pat
                                                             "points_crs": run["site"]["crs"],
                                                             "heights": "ellipsoidal (WGS84)"}, indent=1))
     # the run folder holds exactly the recorded outputs of earlier steps (copies: steps may rewrite them)
-    recorded = {o["path"]: o["sha256"] for o in run["outputs"] if o["step"] != step}
+    recorded = {o["path"]: o["sha256"] for o in run["outputs"]
+                if o["step"] != step or _own_file_wanted(o["path"], step, part, run)}
     have = _manifest(out_dir)
     for f in sorted(out_dir.rglob("*")):
         rel = f.relative_to(out_dir).as_posix()
@@ -121,7 +132,40 @@ def materialise(storage, run: dict, step: str, run_dir: Path) -> tuple[Path, Pat
         if not dest.exists() or have.get(path) != sha:
             storage.fetch(blob_key(sha), dest, link_ok=False)
     _write_manifest(out_dir, recorded)
+    if "design" in info.site_data:
+        _materialise_design(storage, run, run_dir)
     return survey_dir, out_dir
+
+
+def _materialise_design(storage, run: dict, run_dir: Path) -> None:
+    """The site's design file (jobs.run_context "design") in run_dir/site/design/ under its uploaded name; its
+    path goes into the run's design context (pipeline._context)."""
+    design = run.get("design")
+    if not design or not design.get("sha256"):
+        return
+    folder = run_dir / "site" / "design"
+    dest = folder / design["filename"]
+    if not (dest.exists() and _manifest(folder).get(design["filename"]) == design["sha256"]):
+        for f in folder.glob("*") if folder.exists() else ():
+            if f.is_file() and f.name != MANIFEST:
+                f.unlink()
+        folder.mkdir(parents=True, exist_ok=True)
+        storage.fetch(blob_key(design["sha256"]), dest, link_ok=True)   # read only
+        _write_manifest(folder, {design["filename"]: design["sha256"]})
+    design["path"] = str(dest)
+
+
+def _own_file_wanted(path: str, step: str, part: int | None, run: dict) -> bool:
+    """Whether a file the step itself recorded (a split step's plan or parts) goes into its folder: while the
+    step waits for its parts or merges them (run["own_files"]: set by the caller), the plan's files, and the
+    parts' files for the merge only."""
+    from georef_core.steps.contract import part_prefix
+
+    if not run.get("own_files"):
+        return False
+    if path.startswith(part_prefix(step)):
+        return part is None
+    return True
 
 
 def _manifest(folder: Path) -> dict:
@@ -141,10 +185,11 @@ def _set_manifest(folder: Path, path: str, sha: str) -> None:
     _write_manifest(folder, m)
 
 
-def collect_outputs(storage, out_dir: Path, before: dict) -> list[tuple[str, str, int]]:
-    """Files the step created or changed, stored content-addressed: [(path, sha256, size)]."""
+def collect_outputs(storage, out_dir: Path, before: dict, under: str = "") -> list[tuple[str, str, int]]:
+    """Files the step created or changed (under the run-relative folder ``under``), stored content-addressed:
+    [(path, sha256, size)]."""
     out = []
-    for f in sorted(out_dir.rglob("*")):
+    for f in sorted((out_dir / under).rglob("*") if (out_dir / under).is_dir() else ()):
         if not f.is_file() or f.is_symlink():
             continue
         rel = f.relative_to(out_dir).as_posix()
@@ -167,6 +212,9 @@ def input_hash(run: dict, step: str) -> str:
         site_data.update(vertical=site["vertical_datum"], geoid=site["geoid"])
     if "stockpiles" in info.site_data:
         site_data["stockpiles"] = [{k: p[k] for k in ("id", "name", "outline", "base")} for p in run["stockpiles"]]
+    if "design" in info.site_data:   # a new design file, area, surface or tolerance: computed again
+        design = run.get("design") or {}
+        site_data["design"] = {k: design.get(k) for k in ("sha256", "surface_name", "area", "tolerance_m")}
     doc = {"step": step, "version": info.version,
            "settings": {k: run["settings"].get(k) for k in info.settings},
            "inputs": {p: s for p, s in sorted(run["inputs"].items())
@@ -182,10 +230,12 @@ def input_hash(run: dict, step: str) -> str:
 
 
 class _Liveness:
-    """Heartbeat thread + throttled progress callback for one claimed step."""
+    """Heartbeat thread + throttled progress callback for one claimed step (or part: ``heartbeat`` and
+    ``report`` are then the part's functions)."""
 
-    def __init__(self, db, claim: jobs.Claim, lease_s: float):
+    def __init__(self, db, claim, lease_s: float, heartbeat=jobs.heartbeat, report=jobs.report_progress):
         self.db, self.claim = db, claim
+        self._heartbeat, self._report = heartbeat, report
         self.lost = False
         self.cancel = False
         self._last = 0.0
@@ -204,7 +254,7 @@ class _Liveness:
     def _beat(self):
         while not self._stop.wait(self._period):
             try:
-                if not jobs.heartbeat(self.db, self.claim):
+                if not self._heartbeat(self.db, self.claim):
                     self.lost = True
                     return
             except Exception as exc:   # a missed beat is not fatal; the lease allows several
@@ -219,7 +269,7 @@ class _Liveness:
         if now - self._last >= PROGRESS_INTERVAL_S or (total and done >= total):
             self._last = now
             try:
-                ours, cancel = jobs.report_progress(self.db, self.claim, stage, done, total)
+                ours, cancel = self._report(self.db, self.claim, stage, done, total)
             except TRANSIENT as exc:
                 log.warning("progress not recorded: %s", exc)
                 return
@@ -253,7 +303,10 @@ def execute_step(run_id: str, step: str) -> str:
         _send(settings, db, storage, msgs)
         return "unavailable"
     h = input_hash(run, step)
-    if not claim.force:
+    merging = claim.phase == "merge"
+    if merging:
+        run["own_files"] = True   # the plan's and the parts' files (materialise)
+    if not claim.force and not merging:
         reuse = jobs.find_reusable(db, claim.survey_id, step, h, run_id)
         if reuse is not None and all(storage.exists(blob_key(sha)) for _, sha, _ in reuse[2]):
             step_id, summary, outputs, src_run = reuse
@@ -274,20 +327,37 @@ def execute_step(run_id: str, step: str) -> str:
                         prev = run_metrics(s, storage, run["previous_run_id"])
                     run["previous_metrics"] = prev
             t0 = time.monotonic()
-            summary = pipeline.REGISTRY[step].adapter(survey_dir, out_dir, dict(run["settings"].get(step) or {}),
-                                                      live.progress, run) or {}
-            if step in ("gnss", "georef"):   # when the survey was flown, from its data (jobs.finish_step stores it)
-                from georef_core.steps.flight_time import add_flight_time
+            options = dict(run["settings"].get(step) or {})
+            split = None
+            if merging:
+                summary = pipeline.merge_parts(step, survey_dir, out_dir, options, jobs.part_descriptors(db, claim),
+                                               live.progress, run)
+            else:
+                parts = pipeline.plan_parts(step, survey_dir, out_dir, options, run)
+                if parts is not None and len(parts) > 1:   # to the workers: the plan's files and the parts
+                    split = (collect_outputs(storage, out_dir, before), parts)
+                    _write_manifest(out_dir, {**before, **{p: s for p, s, _ in split[0]}})
+                    summary = {}
+                else:
+                    summary = pipeline.REGISTRY[step].adapter(survey_dir, out_dir, options, live.progress, run) or {}
+            if split is None:
+                if step in ("gnss", "georef"):   # when the survey was flown, from its data (jobs.finish_step stores it)
+                    from georef_core.steps.flight_time import add_flight_time
 
-                add_flight_time(summary, survey_dir, out_dir)
-            # what the platform stores of the step's results is read from its declared outputs
-            volumes = pipeline.stored_volumes(out_dir) if step == "volumes" else None
-            summary = json.loads(_relative(json.dumps(summary, default=str), run_dir))
-            summary["duration_s"] = round(time.monotonic() - t0, 2)
+                    add_flight_time(summary, survey_dir, out_dir)
+                # what the platform stores of the step's results is read from its declared outputs
+                volumes = pipeline.stored_volumes(out_dir) if step == "volumes" else None
+                summary = json.loads(_relative(json.dumps(summary, default=str), run_dir))
+                summary["duration_s"] = round(time.monotonic() - t0, 2)
             if live.lost:
                 raise LostClaim("step taken over by another worker")
-            outputs = collect_outputs(storage, out_dir, before)
-            _write_manifest(out_dir, {**before, **{p: s for p, s, _ in outputs}})
+            if split is None:
+                outputs = collect_outputs(storage, out_dir, before)
+                _write_manifest(out_dir, {**before, **{p: s for p, s, _ in outputs}})
+        if split is not None:
+            ok, msgs = jobs.start_parts(db, claim, h, split[0], split[1])
+            _send(settings, db, storage, msgs)
+            return f"split into {len(split[1])} parts" if ok else "lost"
         ok, msgs = jobs.finish_step(db, claim, h, outputs, summary, volumes=volumes, storage=storage)
         _send(settings, db, storage, msgs)
         return "done" if ok else "lost"
@@ -312,6 +382,55 @@ def execute_step(run_id: str, step: str) -> str:
     except Exception as exc:   # a bug: the run records it with the traceback in its log
         jobs.log(db, run_id, "internal error:\n" + _relative(traceback.format_exc(limit=8), run_dir), step, "error")
         ok, msgs = jobs.fail_step(db, claim, f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})")
+        _send(settings, db, storage, msgs)
+        return "failed"
+
+
+def execute_part(run_id: str, step: str, index: int) -> str:
+    """Claim and run one part of a split step in a folder of its own (two parts on one machine never share
+    one); record its files and, for the last part, queue the merge. Raises only transient errors."""
+    from georef_core.errors import GeorefError, InputFileError, StepCancelled
+    from georef_core.steps.contract import part_prefix
+
+    settings, db, storage = _env()
+    pc = jobs.claim_part(db, run_id, step, index, worker_id())
+    if not isinstance(pc, jobs.PartClaim):
+        if pc == "cancelled":
+            _send(settings, db, storage, [("run-finished", run_id)])
+        log.info("run %s step %s part %s: nothing to do (%s)", run_id, step, index, pc)
+        return f"skipped: {pc}"
+    run = jobs.run_context(db, run_id)
+    run["own_files"] = True              # the plan's files (materialise)
+    run_dir = settings.resolved_work_dir() / "runs" / run_id / "parts" / f"{step}-{index:04d}"
+    try:
+        with _Liveness(db, pc, settings.step_lease_s, jobs.part_heartbeat, jobs.report_part_progress) as live:
+            survey_dir, out_dir = materialise(storage, run, step, run_dir, part=index)
+            shutil.rmtree(out_dir / part_prefix(step, index), ignore_errors=True)   # an earlier attempt's files
+            before = _manifest(out_dir)
+            pipeline.run_part(step, survey_dir, out_dir, dict(run["settings"].get(step) or {}),
+                              dict(pc.descriptor, index=index), live.progress, run)
+            if live.lost:
+                raise LostClaim("part taken over by another worker")
+            outputs = collect_outputs(storage, out_dir, before, under=part_prefix(step, index))
+        ok, msgs = jobs.finish_part(db, pc, outputs)
+        _send(settings, db, storage, msgs)
+        return "done" if ok else "lost"
+    except LostClaim:
+        log.warning("run %s step %s part %s: no longer ours; result discarded", run_id, step, index)
+        return "lost"
+    except StepCancelled as exc:
+        ok, msgs = jobs.fail_part(db, pc, str(exc) or "cancelled", cancelled=True)
+        _send(settings, db, storage, msgs)
+        return "cancelled"
+    except TRANSIENT:
+        raise
+    except (InputFileError, GeorefError) as exc:
+        ok, msgs = jobs.fail_part(db, pc, _relative(str(exc), run_dir))
+        _send(settings, db, storage, msgs)
+        return "failed"
+    except Exception as exc:   # a bug: the run records it with the traceback in its log
+        jobs.log(db, run_id, "internal error:\n" + _relative(traceback.format_exc(limit=8), run_dir), step, "error")
+        ok, msgs = jobs.fail_part(db, pc, f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})")
         _send(settings, db, storage, msgs)
         return "failed"
 
@@ -356,6 +475,21 @@ def run_step(self, run_id: str, step: str) -> str:
         if self.request.retries >= settings.task_max_retries:
             give_up(run_id, step, exc)
             return "failed"
+        raise self.retry(exc=exc, countdown=min(60, 2 ** self.request.retries))
+
+
+@shared_task(name="georef.run_part", bind=True, acks_late=True, reject_on_worker_lost=True, max_retries=None)
+def run_part(self, run_id: str, step: str, index: int) -> str:
+    settings = get_settings()
+    try:
+        return execute_part(run_id, step, int(index))
+    except TRANSIENT as exc:
+        try:
+            jobs.release_part(_env()[1], run_id, step, int(index), worker_id(), str(exc))
+        except Exception as inner:   # the database itself may be down: the reaper will requeue
+            log.warning("could not release part %s of step %s of run %s: %s", index, step, run_id, inner)
+        if self.request.retries >= settings.task_max_retries:
+            return "gave up (the reaper will re-send it)"
         raise self.retry(exc=exc, countdown=min(60, 2 ** self.request.retries))
 
 

@@ -14,6 +14,7 @@ from .settings import Settings
 log = logging.getLogger("georef.queue")
 
 RUN_STEP_TASK = "georef.run_step"
+RUN_PART_TASK = "georef.run_part"
 DELIVER_WEBHOOK_TASK = "georef.deliver_webhook"
 
 _apps: dict[str, Celery] = {}
@@ -61,6 +62,20 @@ def send_step(settings: Settings, run_id: str, step: str) -> bool:
         return True
     except Exception as exc:   # broker down: the step stays queued; the reaper re-sends it
         log.warning("could not send step %s of run %s to the broker (%s); it will be re-sent", step, run_id, exc)
+        return False
+
+
+def send_part(settings: Settings, run_id: str, step: str, index: int) -> bool:
+    """One part of a step that runs on several workers, to the step's queue."""
+    from ..services.steps_catalog import queue_for
+
+    queue = queue_for(step, settings.default_queue, settings.heavy_queue)
+    try:
+        client_for(settings).send_task(RUN_PART_TASK, args=[run_id, step, int(index)], queue=queue, retry=True,
+                                       retry_policy={"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5})
+        return True
+    except Exception as exc:   # broker down: the part stays queued; the reaper re-sends it
+        log.warning("could not send part %s of step %s of run %s (%s); it will be re-sent", index, step, run_id, exc)
         return False
 
 

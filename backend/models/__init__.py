@@ -2,11 +2,11 @@
 
 from .accounts import ApiToken, LoginThrottle, Organisation, User, UserSession
 from .base import Base
-from .runs import Run, RunLog, RunOutput, RunStep, VolumeMeasurement
-from .sites import ROLES, Schedule, Site, SiteRole, Stockpile
+from .runs import Run, RunLog, RunOutput, RunStep, RunStepPart, VolumeMeasurement
+from .sites import ROLES, Schedule, Site, SiteDesign, SiteRole, Stockpile
 from .surveys import Survey, SurveyFile, Upload, UploadChunk
 from .webhooks import Webhook, WebhookDelivery
 
-__all__ = ["ApiToken", "Base", "LoginThrottle", "Organisation", "ROLES", "Run", "RunLog", "RunOutput", "RunStep", "Schedule", "Site",
+__all__ = ["ApiToken", "Base", "LoginThrottle", "Organisation", "ROLES", "Run", "RunLog", "RunOutput", "RunStep", "RunStepPart", "Schedule", "Site", "SiteDesign",
            "SiteRole", "Stockpile", "Survey", "SurveyFile", "Upload", "UploadChunk", "User", "UserSession", "VolumeMeasurement", "Webhook",
            "WebhookDelivery"]

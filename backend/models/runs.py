@@ -58,6 +58,32 @@ class RunStep(IdMixin, Base):
     progress_total: Mapped[int] = mapped_column(Integer, default=0)
     summary: Mapped[dict | None] = mapped_column(JSON, default=None)
     error: Mapped[str | None] = mapped_column(Text, default=None)
+    # a step that runs as parts on several workers (contract.Split): None (one worker), "parts" (its parts
+    # are queued or running: RunStepPart rows), "merge" (all parts done: the next claim merges them)
+    phase: Mapped[str | None] = mapped_column(String(8), default=None)
+
+
+class RunStepPart(IdMixin, Base):
+    """One part of a split step (contract.Split), advanced like a step: an atomic claim whose attempt number
+    fences heartbeats and the final write; its outputs are recorded with the step's name."""
+
+    __tablename__ = "run_step_parts"
+    __table_args__ = (UniqueConstraint("run_step_id", "index"),)
+    run_step_id: Mapped[str] = mapped_column(ForeignKey("run_steps.id", ondelete="CASCADE"), index=True)
+    run_id: Mapped[str] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    step_name: Mapped[str] = mapped_column(String(32))
+    index: Mapped[int] = mapped_column(Integer)
+    descriptor: Mapped[dict] = mapped_column(JSON, default=dict)     # what the plan said this part does
+    state: Mapped[str] = mapped_column(String(16), default="queued", index=True)   # queued | running | succeeded
+    attempt: Mapped[int] = mapped_column(Integer, default=0)
+    worker: Mapped[str | None] = mapped_column(String(200), default=None)
+    queued_at: Mapped[datetime | None] = mapped_column(default=None)
+    started_at: Mapped[datetime | None] = mapped_column(default=None)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)
+    progress_stage: Mapped[str] = mapped_column(String(200), default="")
+    progress_done: Mapped[int] = mapped_column(Integer, default=0)
+    progress_total: Mapped[int] = mapped_column(Integer, default=0)
 
 
 class RunOutput(IdMixin, Base):

@@ -20,6 +20,19 @@ class RerunIn(BaseModel):
     settings: dict = Field(default_factory=dict)
 
 
+class PartOut(ORM):
+    """One part of a step that runs on several workers (its progress: the UI shows one bar per part)."""
+    index: int
+    state: str
+    attempt: int
+    worker: str | None
+    started_at: datetime | None
+    finished_at: datetime | None
+    progress_stage: str
+    progress_done: int
+    progress_total: int
+
+
 class StepOut(ORM):
     id: str
     name: str
@@ -39,6 +52,8 @@ class StepOut(ORM):
     progress_total: int
     summary: dict | None
     error: str | None
+    phase: str | None = None            # a step on several workers: "parts" while they run, "merge" after
+    parts: list[PartOut] = []
 
 
 class RunOut(ORM):

@@ -12,7 +12,10 @@ from ..storage import Storage
 
 SCOPES = ("read", "write", "admin")
 # a token's scope grants the lower ones too: admin -> write -> read
-SCOPE_IMPLIES = {"read": {"read"}, "write": {"read", "write"}, "admin": {"read", "write", "admin"}}
+SCOPE_IMPLIES = {"read": {"read"}, "write": {"read", "write"}, "admin": {"read", "write", "admin"},
+                 # a tile token (POST /tokens/tile): reads map tiles and nothing else (docs/security.md)
+                 "tiles": {"tiles"}}
+TILE_SCOPE = "tiles"
 
 
 @dataclass
@@ -27,6 +30,11 @@ class Principal:
 
     def has_scope(self, scope: str) -> bool:
         return scope in self.scopes
+
+    @property
+    def tiles_only(self) -> bool:
+        """A tile token: it may only read map tiles (it can travel in a URL)."""
+        return self.via == "token" and self.scopes == frozenset({"tiles"})
 
 
 def expand_scopes(scopes) -> frozenset:
@@ -52,12 +60,14 @@ class Ctx:
         self.flush_outbox()
 
     def flush_outbox(self) -> None:
-        from ..core.queue import send_step, send_webhook
+        from ..core.queue import send_part, send_step, send_webhook
 
         pending, self.outbox = self.outbox, []
         for msg in pending:
             if msg[0] == "step":
                 send_step(self.settings, msg[1], msg[2])
+            elif msg[0] == "part":
+                send_part(self.settings, msg[1], msg[2], msg[3])
             elif msg[0] == "webhook":
                 send_webhook(self.settings, msg[1])
 

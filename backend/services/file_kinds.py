@@ -678,11 +678,14 @@ def recognise(path, name: str = "") -> Recognised:
             return Recognised("gcp-list", parse_gcp_list(text))
         except ValueError as exc:
             raise UnrecognisedFile(f"ODM gcp_list.txt: {exc}") from None
-    if all(c in low for c in POINT_COLUMNS):
-        try:
-            pts = parse_points_csv(text)
-        except ValueError as exc:
+    # a points table is what the georef step reads as one (the core's column names: name/id, easting/x, ...)
+    try:
+        pts = parse_points_csv(text)
+    except ValueError as exc:
+        pts = None
+        if "needs columns" not in str(exc) and "the point file is empty" not in str(exc):
             raise UnrecognisedFile(f"points CSV: {exc}") from None
+    if pts is not None:
         return Recognised("points", {"points": len(pts), "control": sum(p["role"] == "control" for p in pts),
                                      "check": sum(p["role"] == "check" for p in pts)})
     from georef_core.gnss.camera_events import EVENT_TIME_COLUMNS

@@ -5,17 +5,22 @@ exactly one worker wins. Its attempt number is a fencing token: heartbeats, prog
 write all say `WHERE attempt = <mine> AND state = 'running'`, so a worker presumed dead (and replaced)
 cannot record anything once its step was taken over. Outputs are recorded in the same transaction
 that marks the step done, so a crash never leaves half a result; the next step is queued in that
-transaction and sent to the broker after the commit."""
+transaction and sent to the broker after the commit.
+
+A step that can run as parts (contract.Split) is planned under its claim; `start_parts` records the plan's
+files and one RunStepPart per part and sets the step's phase to "parts" (the step stays "running"; its
+own heartbeat no longer matters, each part has one). Parts are claimed, fenced and reaped like steps. The
+last part to finish puts the step back in the queue with phase "merge": the next claim merges."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import timedelta
 
-from sqlalchemy import delete, select, update
+from sqlalchemy import delete, func, or_, select, update
 
 from ..db.session import Database
-from ..models import Run, RunOutput, RunStep, Schedule, Survey, VolumeMeasurement
+from ..models import Run, RunOutput, RunStep, RunStepPart, Schedule, Survey, VolumeMeasurement
 from ..models.base import utcnow
 from . import steps_catalog
 from .runs import TERMINAL_STEP_STATES, add_log
@@ -31,6 +36,7 @@ class Claim:
     survey_id: str
     site_id: str
     worker: str
+    phase: str | None = None     # "merge": the parts of this split step are done, merge them
 
 
 def claim_step(db: Database, run_id: str, step: str, worker: str) -> Claim | str:
@@ -41,7 +47,7 @@ def claim_step(db: Database, run_id: str, step: str, worker: str) -> Claim | str
             update(RunStep).where(RunStep.run_id == run_id, RunStep.name == step, RunStep.state == "queued")
             .values(state="running", attempt=RunStep.attempt + 1, worker=worker, started_at=now, heartbeat_at=now,
                     finished_at=None, error=None, progress_stage="starting", progress_done=0, progress_total=0)
-            .returning(RunStep.id, RunStep.attempt, RunStep.force)).first()
+            .returning(RunStep.id, RunStep.attempt, RunStep.force, RunStep.phase)).first()
         if row is None:
             st = s.scalar(select(RunStep.state).where(RunStep.run_id == run_id, RunStep.name == step))
             return st or "missing"
@@ -53,8 +59,9 @@ def claim_step(db: Database, run_id: str, step: str, worker: str) -> Claim | str
             return "cancelled"
         s.execute(update(Run).where(Run.id == run_id, Run.state == "queued")
                   .values(state="running", started_at=now, version=Run.version + 1))
-        add_log(s, run_id, f"step {step} started on {worker} (attempt {row.attempt})", step)
-        return Claim(row.id, run_id, step, row.attempt, row.force, run.survey_id, run.site_id, worker)
+        add_log(s, run_id, f"step {step} {'merging its parts' if row.phase == 'merge' else 'started'} on {worker} "
+                           f"(attempt {row.attempt})", step)
+        return Claim(row.id, run_id, step, row.attempt, row.force, run.survey_id, run.site_id, worker, row.phase)
 
 
 def heartbeat(db: Database, claim: Claim) -> bool:
@@ -83,11 +90,12 @@ def log(db: Database, run_id: str, message: str, step: str | None = None, level:
 
 def run_context(db: Database, run_id: str) -> dict:
     """What a step needs to know about its run: settings, inputs, earlier outputs."""
-    from ..models import Site, Stockpile
+    from ..models import Organisation, Site, Stockpile
 
     with db.session(read_only=True) as s:
         run = s.get(Run, run_id)
         site = s.get(Site, run.site_id)
+        org = s.get(Organisation, site.organisation_id)
         survey = s.get(Survey, run.survey_id)
         outputs = list(s.scalars(select(RunOutput).where(RunOutput.run_id == run_id)))
         piles = list(s.scalars(select(Stockpile).where(Stockpile.site_id == run.site_id).order_by(Stockpile.name)))
@@ -95,12 +103,24 @@ def run_context(db: Database, run_id: str) -> dict:
         return {"run_id": run.id, "survey_id": run.survey_id, "site_id": run.site_id, "settings": run.settings,
                 "inputs": dict(run.inputs), "steps": list(run.steps), "number": run.number,
                 "previous_run_id": run.previous_run_id,
-                "site": {"name": site.name, "crs": site.crs, "vertical_datum": site.vertical_datum, "geoid": site.geoid},
+                "site": {"name": site.name, "crs": site.crs, "vertical_datum": site.vertical_datum, "geoid": site.geoid,
+                         # the report's cover and verdict
+                         "organisation": org.name if org is not None else None,
+                         "tolerance_horizontal_m": site.tolerance_horizontal_m,
+                         "tolerance_vertical_m": site.tolerance_vertical_m},
                 "survey": {"name": survey.name, "flown_at": survey.flown_at.isoformat() if survey.flown_at else None,
                            "flown_at_source": survey.flown_at_source},
                 "stockpiles": [{"id": p.id, "name": p.name, "outline": p.outline, "base": p.base} for p in piles],
+                "design": _design_context(s, run.site_id),
                 "step_states": [{"name": st.name, "state": st.state, "error": st.error} for st in steps],
                 "outputs": [{"step": o.step_name, "path": o.path, "sha256": o.sha256, "size": o.size} for o in outputs]}
+
+
+def _design_context(s, site_id: str) -> dict | None:
+    """The site's design surface for the design step (services/designs.design_context)."""
+    from .designs import design_context
+
+    return design_context(s, site_id)
 
 
 def volumes_of_run(db: Database, run_id: str, with_material: bool = False) -> list[dict]:
@@ -115,10 +135,12 @@ def volumes_of_run(db: Database, run_id: str, with_material: bool = False) -> li
                 "details": v.details} for v in rows]
         if with_material:
             ids = [v["stockpile_id"] for v in out if v["stockpile_id"]]
-            materials = dict(s.execute(select(Stockpile.id, Stockpile.material).where(Stockpile.id.in_(ids))).all()) \
-                if ids else {}
+            piles = {i: (m, d) for i, m, d in s.execute(select(Stockpile.id, Stockpile.material, Stockpile.density_t_m3)
+                                                         .where(Stockpile.id.in_(ids))).all()} if ids else {}
             for v in out:
-                v["material"] = materials.get(v["stockpile_id"]) or ""
+                material, density = piles.get(v["stockpile_id"], ("", None))
+                v["material"] = material or ""
+                v["density_t_m3"] = density       # the report's tonnage
         return out
 
 
@@ -170,7 +192,7 @@ def finish_step(db: Database, claim: Claim, input_hash: str, outputs: list[tuple
         n = s.execute(update(RunStep).where(RunStep.id == claim.step_id, RunStep.attempt == claim.attempt,
                                             RunStep.state == "running")
                       .values(state="skipped" if reused_from or nothing_to_do else "succeeded", finished_at=now,
-                              heartbeat_at=now,
+                              heartbeat_at=now, phase=None,
                               input_hash=input_hash, summary=summary, reused_from_step_id=reused_from,
                               progress_stage="done", error=None)).rowcount
         if n != 1:
@@ -306,7 +328,9 @@ def reap(db: Database, lease_s: float, requeue_queued_after_s: float) -> list[tu
     out: list[tuple] = []
     with db.session() as s:
         stale = now - timedelta(seconds=lease_s)
-        rows = s.execute(update(RunStep).where(RunStep.state == "running", RunStep.heartbeat_at < stale)
+        # a step whose parts run has no heartbeat of its own: its parts are reaped below
+        rows = s.execute(update(RunStep).where(RunStep.state == "running", RunStep.heartbeat_at < stale,
+                                               or_(RunStep.phase.is_(None), RunStep.phase != "parts"))
                          .values(state="queued", queued_at=now, worker=None,
                                  error="worker stopped responding; step restarted")
                          .returning(RunStep.run_id, RunStep.name)).all()
@@ -318,4 +342,185 @@ def reap(db: Database, lease_s: float, requeue_queued_after_s: float) -> list[tu
         rows = s.execute(update(RunStep).where(RunStep.state == "queued", RunStep.queued_at < old)
                          .values(queued_at=now).returning(RunStep.run_id, RunStep.name)).all()
         out.extend(("step", r.run_id, r.name) for r in rows)
+        rows = s.execute(update(RunStepPart).where(RunStepPart.state == "running", RunStepPart.heartbeat_at < stale)
+                         .values(state="queued", queued_at=now, worker=None)
+                         .returning(RunStepPart.run_id, RunStepPart.step_name, RunStepPart.index)).all()
+        for r in rows:
+            add_log(s, r.run_id, f"step {r.step_name} part {r.index}: no heartbeat for {lease_s:.0f} s, restarting it "
+                                 "on another worker", r.step_name, "warning")
+            out.append(("part", r.run_id, r.step_name, r.index))
+        rows = s.execute(update(RunStepPart).where(RunStepPart.state == "queued", RunStepPart.queued_at < old)
+                         .values(queued_at=now)
+                         .returning(RunStepPart.run_id, RunStepPart.step_name, RunStepPart.index)).all()
+        out.extend(("part", r.run_id, r.step_name, r.index) for r in rows)
     return out
+
+
+# ------------------------------------------------------------------------------------- steps run as parts
+
+
+@dataclass
+class PartClaim:
+    part_id: str
+    step_id: str
+    run_id: str
+    step: str
+    index: int
+    attempt: int
+    descriptor: dict
+    worker: str
+
+
+def start_parts(db: Database, claim: Claim, input_hash: str, plan_outputs: list[tuple[str, str, int]],
+                parts: list[dict]) -> tuple[bool, list[tuple]]:
+    """The planned step goes to its parts: the plan's files recorded (every part gets them), one queued part
+    per descriptor, the step's phase "parts"; (recorded, the part messages to send)."""
+    now = utcnow()
+    with db.session() as s:
+        n = s.execute(update(RunStep).where(RunStep.id == claim.step_id, RunStep.attempt == claim.attempt,
+                                            RunStep.state == "running")
+                      .values(phase="parts", input_hash=input_hash, heartbeat_at=now, progress_stage="parts",
+                              progress_done=0, progress_total=len(parts))).rowcount
+        if n != 1:
+            return False, []
+        s.execute(delete(RunStepPart).where(RunStepPart.run_step_id == claim.step_id))
+        s.execute(delete(RunOutput).where(RunOutput.run_id == claim.run_id, RunOutput.step_name == claim.step))
+        for path, sha, size in plan_outputs:
+            s.add(RunOutput(run_id=claim.run_id, step_name=claim.step, path=path, sha256=sha, size=size))
+        for k, d in enumerate(parts):
+            s.add(RunStepPart(run_step_id=claim.step_id, run_id=claim.run_id, step_name=claim.step, index=k,
+                              descriptor=d, state="queued", attempt=0, queued_at=now, progress_stage="",
+                              progress_done=0, progress_total=0))
+        add_log(s, claim.run_id, f"step {claim.step} split into {len(parts)} parts", claim.step)
+        return True, [("part", claim.run_id, claim.step, k) for k in range(len(parts))]
+
+
+def part_descriptors(db: Database, claim: Claim) -> list[dict]:
+    """The parts of a claimed split step, as its plan described them, each with its ``index``."""
+    with db.session(read_only=True) as s:
+        rows = s.execute(select(RunStepPart.index, RunStepPart.descriptor)
+                         .where(RunStepPart.run_step_id == claim.step_id).order_by(RunStepPart.index)).all()
+        return [dict(r.descriptor or {}, index=r.index) for r in rows]
+
+
+def claim_part(db: Database, run_id: str, step: str, index: int, worker: str) -> PartClaim | str:
+    """The part's claim, or why there is nothing to do ('succeeded', 'running', 'cancelled', 'step failed' ...).
+    A run whose cancellation was asked cancels the step here."""
+    now = utcnow()
+    with db.session() as s:
+        st = s.execute(select(RunStep.id, RunStep.state, RunStep.phase)
+                       .where(RunStep.run_id == run_id, RunStep.name == step)).first()
+        if st is None:
+            return "missing"
+        if st.state != "running" or st.phase != "parts":
+            return f"step {st.state}"
+        if s.scalar(select(Run.cancel_requested).where(Run.id == run_id)):
+            _end_split_step(s, run_id, st.id, step, "cancelled by the user", cancelled=True)
+            return "cancelled"
+        row = s.execute(
+            update(RunStepPart).where(RunStepPart.run_step_id == st.id, RunStepPart.index == index,
+                                      RunStepPart.state == "queued")
+            .values(state="running", attempt=RunStepPart.attempt + 1, worker=worker, started_at=now, heartbeat_at=now,
+                    finished_at=None, progress_stage="starting", progress_done=0, progress_total=0)
+            .returning(RunStepPart.id, RunStepPart.attempt, RunStepPart.descriptor)).first()
+        if row is None:
+            return s.scalar(select(RunStepPart.state).where(RunStepPart.run_step_id == st.id,
+                                                            RunStepPart.index == index)) or "missing"
+        add_log(s, run_id, f"step {step} part {index} started on {worker} (attempt {row.attempt})", step)
+        return PartClaim(row.id, st.id, run_id, step, index, row.attempt, dict(row.descriptor or {}), worker)
+
+
+def _part_is_ours(s, pc: PartClaim):
+    return (RunStepPart.id == pc.part_id, RunStepPart.attempt == pc.attempt, RunStepPart.state == "running")
+
+
+def _step_waits_for_parts(s, pc: PartClaim) -> bool:
+    return s.scalar(select(func.count()).select_from(RunStep).where(
+        RunStep.id == pc.step_id, RunStep.state == "running", RunStep.phase == "parts")) == 1
+
+
+def part_heartbeat(db: Database, pc: PartClaim) -> bool:
+    """Still ours, and its step still waiting for it?"""
+    with db.session() as s:
+        n = s.execute(update(RunStepPart).where(*_part_is_ours(s, pc)).values(heartbeat_at=utcnow())).rowcount
+        return n == 1 and _step_waits_for_parts(s, pc)
+
+
+def report_part_progress(db: Database, pc: PartClaim, stage: str, done: int, total: int) -> tuple[bool, bool]:
+    """(still ours, cancel requested)."""
+    with db.session() as s:
+        n = s.execute(update(RunStepPart).where(*_part_is_ours(s, pc))
+                      .values(progress_stage=stage[:200], progress_done=int(done), progress_total=int(total),
+                              heartbeat_at=utcnow())).rowcount
+        cancel = bool(s.scalar(select(Run.cancel_requested).where(Run.id == pc.run_id)))
+        return n == 1 and _step_waits_for_parts(s, pc), cancel
+
+
+def finish_part(db: Database, pc: PartClaim, outputs: list[tuple[str, str, int]]) -> tuple[bool, list[tuple]]:
+    """Record the part's files and mark it done; the last part puts its step back in the queue to merge."""
+    now = utcnow()
+    with db.session() as s:
+        # parts finishing at the same moment are serialised on their step's row (PostgreSQL: FOR UPDATE;
+        # SQLite: BEGIN IMMEDIATE already), so exactly one of them sees all parts done and queues the merge
+        st = s.execute(select(RunStep.state, RunStep.phase).where(RunStep.id == pc.step_id).with_for_update()).first()
+        if st is None or st.state != "running" or st.phase != "parts":
+            return False, []
+        n = s.execute(update(RunStepPart).where(*_part_is_ours(s, pc))
+                      .values(state="succeeded", finished_at=now, heartbeat_at=now, progress_stage="done")).rowcount
+        if n != 1:
+            return False, []
+        if outputs:
+            s.execute(delete(RunOutput).where(RunOutput.run_id == pc.run_id,
+                                              RunOutput.path.in_([o[0] for o in outputs])))
+        for path, sha, size in outputs:
+            s.add(RunOutput(run_id=pc.run_id, step_name=pc.step, path=path, sha256=sha, size=size))
+        s.flush()
+        counts = dict(s.execute(select(RunStepPart.state, func.count()).where(RunStepPart.run_step_id == pc.step_id)
+                                .group_by(RunStepPart.state)).all())
+        total, done = sum(counts.values()), counts.get("succeeded", 0)
+        add_log(s, pc.run_id, f"step {pc.step} part {pc.index} done on {pc.worker} ({done} of {total})", pc.step)
+        if done < total:
+            s.execute(update(RunStep).where(RunStep.id == pc.step_id).values(progress_done=done, heartbeat_at=now))
+            return True, []
+        s.execute(update(RunStep).where(RunStep.id == pc.step_id, RunStep.state == "running", RunStep.phase == "parts")
+                  .values(state="queued", phase="merge", queued_at=now, progress_stage="merge", progress_done=done))
+        return True, [("step", pc.run_id, pc.step)]
+
+
+def fail_part(db: Database, pc: PartClaim, reason: str, cancelled: bool = False) -> tuple[bool, list[tuple]]:
+    """A part failed (or was cancelled): so does its step, and the run."""
+    with db.session() as s:
+        n = s.execute(update(RunStepPart).where(*_part_is_ours(s, pc))
+                      .values(state="cancelled" if cancelled else "failed", finished_at=utcnow())).rowcount
+        if n != 1:
+            return False, []
+        return True, _end_split_step(s, pc.run_id, pc.step_id, pc.step,
+                                     reason if cancelled else f"part {pc.index}: {reason}", cancelled)
+
+
+def release_part(db: Database, run_id: str, step: str, index: int, worker: str, reason: str) -> None:
+    """Give a claimed part back to the queue (transient error; it will be retried)."""
+    with db.session() as s:
+        s.execute(update(RunStepPart).where(RunStepPart.run_id == run_id, RunStepPart.step_name == step,
+                                            RunStepPart.index == index, RunStepPart.state == "running",
+                                            RunStepPart.worker == worker)
+                  .values(state="queued", queued_at=utcnow()))
+        add_log(s, run_id, f"step {step} part {index}: transient error, retrying ({reason})", step, "warning")
+
+
+def _end_split_step(s, run_id: str, step_id: str, step: str, reason: str, cancelled: bool) -> list[tuple]:
+    """Fail (or cancel) a step waiting for its parts, the parts not yet run, the steps after it, the run."""
+    now = utcnow()
+    n = s.execute(update(RunStep).where(RunStep.id == step_id, RunStep.state == "running", RunStep.phase == "parts")
+                  .values(state="cancelled" if cancelled else "failed", finished_at=now, error=reason)).rowcount
+    if n != 1:
+        return []
+    s.execute(update(RunStepPart).where(RunStepPart.run_step_id == step_id, RunStepPart.state == "queued")
+              .values(state="cancelled", finished_at=now))
+    s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.state.in_(("pending", "queued")))
+              .values(state="cancelled", finished_at=now,
+                      error="cancelled by the user" if cancelled else f"not run: step {step} failed"))
+    add_log(s, run_id, f"step {step} {'cancelled' if cancelled else 'failed'}: {reason}", step,
+            "warning" if cancelled else "error")
+    run = s.get(Run, run_id)
+    return _end_run(s, run, "cancelled" if cancelled else "failed", None if cancelled else f"step {step} failed: {reason}")

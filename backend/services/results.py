@@ -48,7 +48,11 @@ MEDIA = {".json": "application/json", ".csv": "text/csv; charset=utf-8", ".pos":
          ".tif": "image/tiff; application=geotiff; profile=cloud-optimized", ".laz": "application/vnd.laszip",
          ".las": "application/vnd.las", ".pdf": "application/pdf", ".png": "image/png",
          ".parquet": "application/vnd.apache.parquet", ".txt": "text/plain; charset=utf-8",
-         ".geojson": "application/geo+json"}
+         ".geojson": "application/geo+json",
+         # the exports step's deliverables (georef_core/deliverables; .xml LandXML stays a plain download)
+         ".dxf": "image/vnd.dxf", ".gpkg": "application/geopackage+sqlite3", ".zip": "application/zip",
+         ".kmz": "application/vnd.google-earth.kmz", ".prj": "text/plain; charset=utf-8",
+         ".xlsx": "application/vnd.openxmlformats-officedocument.spreadsheetml.sheet"}
 
 
 def media_type(path: str) -> str:

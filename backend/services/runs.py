@@ -88,7 +88,17 @@ def list_runs(ctx: Ctx, survey_id: str, state: str | None, limit: int, offset: i
 
 
 def run_steps(db, run_id: str) -> list[RunStep]:
-    return list(db.scalars(select(RunStep).where(RunStep.run_id == run_id).order_by(RunStep.position)))
+    """The run's steps in order, each with ``parts``: the parts of a step that runs on several workers
+    (RunStepPart rows in index order; empty for a step that runs on one)."""
+    from ..models import RunStepPart
+
+    steps = list(db.scalars(select(RunStep).where(RunStep.run_id == run_id).order_by(RunStep.position)))
+    parts: dict[str, list] = {}
+    for p in db.scalars(select(RunStepPart).where(RunStepPart.run_id == run_id).order_by(RunStepPart.index)):
+        parts.setdefault(p.run_step_id, []).append(p)
+    for st in steps:
+        st.parts = parts.get(st.id, [])
+    return steps
 
 
 def get_run(ctx: Ctx, run_id: str) -> tuple[Run, list[RunStep]]:

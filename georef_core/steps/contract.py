@@ -25,8 +25,9 @@ from typing import Any, Callable
 
 from ..errors import ProcessingError
 
-__all__ = ["Option", "OptionError", "Output", "Product", "StepSpec", "Workspace", "all_specs", "get_spec",
-           "load_plugins", "options_from_dataclass", "register", "unregister"]
+__all__ = ["Option", "OptionError", "Output", "Product", "Split", "StepSpec", "StepUnavailable", "Workspace",
+           "all_specs", "get_spec", "load_plugins", "options_from_dataclass", "part_prefix", "register",
+           "resolve_function", "run_split", "unregister"]
 
 KINDS = ("number", "integer", "string", "boolean", "numbers", "object")
 
@@ -144,12 +145,16 @@ class Option:
 
 @dataclass(frozen=True)
 class Output:
-    """A file a step writes, relative to the run's output folder."""
+    """A file a step writes, relative to the run's output folder. `tile`: a georeferenced raster the API
+    serves as web map tiles (/runs/{id}/tiles/{key}/...) in this style: rgb (an orthophoto), heights (a
+    surface model: colour ramp and hillshade) or difference (signed metres: diverging ramp);
+    georef_core/tiles/render.py."""
 
     key: str
     path: str
     description: str = ""
     media_type: str | None = None
+    tile: str | None = None
 
 
 @dataclass(frozen=True)
@@ -163,6 +168,26 @@ class Product:
     description: str
     needs: tuple[str, ...]
     formats: tuple[tuple[str, str], ...] = (("", "file"),)
+
+
+@dataclass(frozen=True)
+class Split:
+    """A step that can also run as parts on several workers: plan, then every part (in any order, on any
+    worker), then merge. Each is "module:function":
+
+    * plan(workspace, options, context) -> [part descriptor (a JSON object), ...]: cheap, deterministic from the
+      step's inputs; may write shared files under the step's folder (recorded, given to every part);
+    * part(workspace, options, part, progress, context): writes only under workspace.part_dir(step, index)
+      (``part["index"]`` is set by the platform: 0..n-1);
+    * merge(workspace, options, parts, progress, context) -> the step's summary: reads the parts' folders,
+      writes the declared outputs.
+
+    `run_split` runs the three in one process (the CLI, a single worker); the platform sends each part to
+    a worker (worker/tasks.py run_part) when the plan has more than one. Both give the same files."""
+
+    plan: str
+    part: str
+    merge: str
 
 
 @dataclass(frozen=True)
@@ -181,6 +206,7 @@ class StepSpec:
     outputs: tuple[Output, ...] = ()
     products: tuple[Product, ...] = ()
     summary: dict[str, str] = field(default_factory=dict)   # key -> what it holds
+    split: Split | None = None        # can run as parts on several workers (Split)
 
     @property
     def settings(self) -> tuple[str, ...]:
@@ -220,7 +246,8 @@ class StepSpec:
         """The spec as the API serves it (GET /steps)."""
         return {"name": self.name, "title": self.title, "description": self.description, "version": self.version,
                 "depends_on": list(self.depends_on), "soft_after": list(self.soft_after), "inputs": list(self.inputs),
-                "site_data": list(self.site_data), "heavy": self.heavy, "options_schema": self.json_schema(),
+                "site_data": list(self.site_data), "heavy": self.heavy, "parallel_parts": self.split is not None,
+                "options_schema": self.json_schema(),
                 "outputs": [dataclasses.asdict(o) for o in self.outputs],
                 "products": [{"endpoint": p.endpoint, "title": p.title, "description": p.description,
                               "needs": [self.output(k).path for k in p.needs],
@@ -264,6 +291,26 @@ class Workspace:
 
     def path(self, step: str, key: str) -> Path:
         return self.out_dir / get_spec(step).output(key).path
+
+    def part_dir(self, step: str, index: int) -> Path:
+        """Where part ``index`` of a split step writes (and only there): <out>/<step>/parts/<index>/."""
+        return self.out_dir / part_prefix(step, index)
+
+
+def part_prefix(step: str, index: int | None = None) -> str:
+    """The run-relative folder of a split step's parts (all of them when ``index`` is None)."""
+    return f"{step}/parts/" if index is None else f"{step}/parts/{int(index):04d}/"
+
+
+def run_split(spec: "StepSpec", workspace: Workspace, options: dict, progress, context: dict) -> dict:
+    """A split step in one process: plan, every part in order, merge (what the platform does across
+    workers, with the same files)."""
+    parts = [dict(p, index=k) for k, p in enumerate(resolve_function(spec.split.plan)(workspace, options, context))]
+    run_part = resolve_function(spec.split.part)
+    for p in parts:
+        workspace.part_dir(spec.name, p["index"]).mkdir(parents=True, exist_ok=True)
+        run_part(workspace, options, p, progress, context)
+    return resolve_function(spec.split.merge)(workspace, options, parts, progress, context)
 
 
 # ------------------------------------------------------------------------------------------------- registry

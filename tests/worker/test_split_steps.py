@@ -1,0 +1,111 @@
+"""A step that runs as parts on several workers (contract.Split; worker/tasks.py run_part): a toy split step
+(tests/steps/toy_split_step.py, a plug-in) through the real API and two real workers on PostgreSQL + Redis:
+the plan's file reaches every part, the parts run in both worker processes, the merge gives the same result
+as the step run in one process (contract.run_split), the run shows every part; a failing part fails the
+step and the run, naming the part; and in the embedded shape (SQLite) with one worker."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+
+from georef_core.steps.contract import Workspace, get_spec, load_plugins, run_split, unregister
+
+from ..backend.platform_helpers import Api, add_user, start_worker, upload_bytes, wait_run
+
+PLUGIN = "tests.steps.toy_split_step"
+
+
+@pytest.fixture
+def toysplit_registered(monkeypatch):
+    from backend.services import steps_catalog
+    from georef_core.steps import contract
+
+    monkeypatch.setenv("GEOREF_STEP_PLUGINS", PLUGIN)
+    load_plugins()
+    steps_catalog.refresh()
+    yield
+    unregister("toysplit")
+    contract._PLUGINS_LOADED.discard(PLUGIN)
+    sys.modules.pop(PLUGIN, None)
+    monkeypatch.delenv("GEOREF_STEP_PLUGINS")
+    steps_catalog.refresh()
+
+
+FILES = {"survey.json": b'{"project_crs": "EPSG:32631"}', "gcp/points.csv": b"name,x,y,z\nA,1,2,3\n",
+         "events.csv": b"gps_time_s\n1400000000.0\n1400000002.0\n"}
+
+
+def _survey(api, name: str) -> str:
+    site = api.post("/api/v1/sites", json={"name": name, "crs": "EPSG:32631"}).json()
+    survey = api.post(f"/api/v1/sites/{site['id']}/surveys", json={"name": name}).json()
+    for path, data in FILES.items():
+        r = upload_bytes(api, survey["id"], path, data)
+        assert r.status_code == 200, r.text
+    return survey["id"]
+
+
+def _local_result(tmp_path, parts: int) -> dict:
+    """The same step in one process, on the same files."""
+    survey = tmp_path / "local_survey"
+    for path, data in FILES.items():
+        (survey / path).parent.mkdir(parents=True, exist_ok=True)
+        (survey / path).write_bytes(data)
+    ws = Workspace(survey, tmp_path / "local_out")
+    summary = run_split(get_spec("toysplit"), ws, {"parts": parts}, None, {"crs": "EPSG:32631"})
+    assert summary["parts"] == parts
+    return json.loads(ws.path("toysplit", "result").read_text())
+
+
+def test_parts_on_two_workers_merge_like_one_process(platform, tmp_path, toysplit_registered):
+    p = platform("postgres", queue="split")
+    add_user(p, "split@example.org", org_admin=True)
+    api = Api(p, "split@example.org")
+    steps = {s["name"]: s for s in api.get("/api/v1/steps").json()["items"]}
+    assert steps["toysplit"]["parallel_parts"] is True and steps["gnss"]["parallel_parts"] is False
+    survey = _survey(api, "split")
+    start_worker(p, "a", step_plugins=PLUGIN)
+    start_worker(p, "b", step_plugins=PLUGIN)
+    run = api.post(f"/api/v1/surveys/{survey}/runs",
+                   json={"steps": ["toysplit"], "settings": {"toysplit": {"parts": 4, "work_s": 1.5}}}).json()
+    final = wait_run(api, run["id"], timeout_s=120)
+    assert final["state"] == "succeeded", final
+    step = next(s for s in final["step_details"] if s["name"] == "toysplit")
+    assert step["summary"]["parts"] == 4 and step["summary"]["files"] == len(FILES), step["summary"]
+    assert step["summary"]["processes"] == 2, step["summary"]        # both workers ran parts
+    assert [q["index"] for q in step["parts"]] == [0, 1, 2, 3]
+    assert all(q["state"] == "succeeded" and q["worker"] for q in step["parts"]), step["parts"]
+    assert step["progress_done"] == step["progress_total"] == 4 or step["progress_stage"] == "done"
+    merged = json.loads(api.get(f"/api/v1/runs/{run['id']}/results/files/toysplit/result.json").text)
+    assert merged == _local_result(tmp_path, 4)
+    logs = api.get(f"/api/v1/runs/{run['id']}/logs").json()
+    items = logs["items"] if isinstance(logs, dict) else logs
+    text = "\n".join(e["message"] for e in items)
+    assert "split into 4 parts" in text and "merging its parts" in text and "part 3 done" in text
+
+    # a part that fails fails its step and the run, naming the part; the parts not run are cancelled
+    run = api.post(f"/api/v1/surveys/{survey}/runs",
+                   json={"steps": ["toysplit"], "settings": {"toysplit": {"parts": 3, "fail_part": 1}}}).json()
+    final = wait_run(api, run["id"], timeout_s=120)
+    assert final["state"] == "failed"
+    step = next(s for s in final["step_details"] if s["name"] == "toysplit")
+    assert step["state"] == "failed" and "part 1: toy part 1 failed as asked" in step["error"], step
+    assert {q["index"]: q["state"] for q in step["parts"]}[1] == "failed"
+
+
+def test_parts_in_the_embedded_shape(platform, tmp_path, toysplit_registered):
+    p = platform("embedded", queue="splitemb")
+    add_user(p, "emb-split@example.org", org_admin=True)
+    api = Api(p, "emb-split@example.org")
+    survey = _survey(api, "split-embedded")
+    start_worker(p, "one", step_plugins=PLUGIN)
+    run = api.post(f"/api/v1/surveys/{survey}/runs",
+                   json={"steps": ["toysplit"], "settings": {"toysplit": {"parts": 2}}}).json()
+    final = wait_run(api, run["id"], timeout_s=120)
+    assert final["state"] == "succeeded", final
+    step = next(s for s in final["step_details"] if s["name"] == "toysplit")
+    assert step["summary"]["parts"] == 2 and step["summary"]["processes"] == 1
+    merged = json.loads(api.get(f"/api/v1/runs/{run['id']}/results/files/toysplit/result.json").text)
+    assert merged == _local_result(tmp_path, 2)
