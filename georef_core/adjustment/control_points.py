@@ -211,7 +211,8 @@ def point_sigma_enu_cov(points: list[GroundPoint]) -> np.ndarray:
 
 def points_to_enu(points: list[GroundPoint], frame) -> np.ndarray:
     """Coordinates of the points in the project frame's local ENU (any CRS through pyproj; a point
-    file in a geographic 2-D CRS is taken with ellipsoidal heights)."""
+    file in a 2-D CRS is taken with ellipsoidal heights, one in a compound CRS with that CRS's vertical
+    datum's heights)."""
     from pyproj import CRS, Transformer
 
     from ..gnss.frames import geodetic_to_ecef_m
@@ -219,14 +220,15 @@ def points_to_enu(points: list[GroundPoint], frame) -> np.ndarray:
     out = np.zeros((len(points), 3))
     for k, p in enumerate(points):
         crs = CRS.from_user_input(p.crs)
-        if crs.is_geographic:
-            lon, lat = p.xyz_crs[0], p.xyz_crs[1]
-            tr = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
-            lon, lat = tr.transform(lon, lat)
-            ecef = geodetic_to_ecef_m(np.radians(lat), np.radians(lon), p.xyz_crs[2]).reshape(3)
-        else:
-            tr = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
-            lon, lat = tr.transform(p.xyz_crs[0], p.xyz_crs[1])
-            ecef = geodetic_to_ecef_m(np.radians(lat), np.radians(lon), p.xyz_crs[2]).reshape(3)
+        # a compound CRS (e.g. EPSG:32631+5773) gives orthometric heights: made ellipsoidal through the geoid
+        # grid (georef_core.datums; an error when the grid is missing, never taken as ellipsoidal)
+        tr = Transformer.from_crs(crs.sub_crs_list[0] if crs.is_compound else crs, "EPSG:4326", always_xy=True)
+        lon, lat = tr.transform(p.xyz_crs[0], p.xyz_crs[1])
+        h = p.xyz_crs[2]
+        if crs.is_compound:
+            from ..datums.vertical_datum import datum_of_crs, orthometric_to_ellipsoidal
+
+            h = float(orthometric_to_ellipsoidal(datum_of_crs(crs), lat, lon, h))
+        ecef = geodetic_to_ecef_m(np.radians(lat), np.radians(lon), h).reshape(3)
         out[k] = frame.ecef_to_enu(ecef)
     return out

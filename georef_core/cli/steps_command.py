@@ -31,6 +31,8 @@ def register(sub) -> None:
     r.add_argument("--settings", help="a JSON file of options for this step ({option: value}) or of sections "
                                       "({step: {option: value}})")
     r.add_argument("--crs", help="the site's CRS (e.g. EPSG:32631), for the steps that read it")
+    r.add_argument("--vertical-datum", help="the site's vertical datum (e.g. EPSG:5773 EGM96 height), for the "
+                                            "steps that read it (datum)")
     r.add_argument("--stockpiles", help="GeoJSON of stockpile outlines (properties name, base) in the site CRS, "
                                         "for the volumes step")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -85,7 +87,8 @@ def cmd_step(args) -> int:
             raise InputFileError(None, f"--set {item!r}: expected KEY=VALUE")
         options[key.strip()] = _value(value.strip())
     options = spec.validate(options)
-    context = {"crs": args.crs, "stockpiles": _stockpiles(args.stockpiles) if args.stockpiles else []}
+    context = {"crs": args.crs, "vertical_datum": args.vertical_datum,
+               "stockpiles": _stockpiles(args.stockpiles) if args.stockpiles else []}
     if spec.function is None:
         raise InputFileError(None, f"step {spec.name} is the platform's own (run it through the API)")
     summary = spec.resolve()(Workspace(args.survey, args.out), options, no_progress, context)

@@ -20,8 +20,9 @@ HEIGHT_TAGS = {"HEIGHTS": "ellipsoidal (WGS84), metres", "PRODUCER": "georef den
 def write_cog(path, bands: np.ndarray, transform: Affine, epsg: int, *, nodata=None, compress: str = "DEFLATE",
               overview_resampling: str = "AVERAGE", colorinterp: list | None = None,
               descriptions: list[str] | None = None, tags: dict | None = None, units: str | None = None,
-              jpeg_quality: int = 90) -> Path:
-    """Write ``bands`` (count, rows, cols) as a COG. float rasters get the floating-point predictor."""
+              jpeg_quality: int = 90, crs=None) -> Path:
+    """Write ``bands`` (count, rows, cols) as a COG. float rasters get the floating-point predictor. ``crs``
+    (WKT or any rasterio CRS input, e.g. a compound CRS with the heights' vertical datum) replaces EPSG:epsg."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     bands = np.asarray(bands)
@@ -29,8 +30,8 @@ def write_cog(path, bands: np.ndarray, transform: Affine, epsg: int, *, nodata=N
         bands = bands[None]
     count, h, w = bands.shape
     profile = {"driver": "GTiff", "width": w, "height": h, "count": count, "dtype": bands.dtype.name,
-               "crs": f"EPSG:{int(epsg)}", "transform": transform, "tiled": True, "blockxsize": 512,
-               "blockysize": 512, "compress": "NONE", "BIGTIFF": "IF_SAFER"}
+               "crs": crs if crs is not None else f"EPSG:{int(epsg)}", "transform": transform, "tiled": True,
+               "blockxsize": 512, "blockysize": 512, "compress": "NONE", "BIGTIFF": "IF_SAFER"}
     if nodata is not None:
         profile["nodata"] = nodata
     fd, tmp_name = tempfile.mkstemp(suffix=".tif", dir=path.parent)
@@ -62,3 +63,21 @@ def write_cog(path, bands: np.ndarray, transform: Affine, epsg: int, *, nodata=N
 
 
 RGBA = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
+
+
+def geotiff_to_cog(src, dst, *, compress: str = "DEFLATE", overview_resampling: str = "AVERAGE") -> Path:
+    """Copy an existing (tiled, strip-written) GeoTIFF into a COG at ``dst`` through GDAL's COG driver: the
+    raster is streamed, never held whole in memory; band descriptions, tags, nodata and a colour table are
+    kept. ``overview_resampling``: AVERAGE for continuous values, NEAREST for classes (an average of two
+    class codes is a third class). Written under ``dst``.part and renamed."""
+    src, dst = Path(src), Path(dst)
+    with rasterio.open(src) as ds:
+        floating = np.issubdtype(np.dtype(ds.dtypes[0]), np.floating)
+    options = {"COMPRESS": compress, "BLOCKSIZE": "512", "OVERVIEW_RESAMPLING": overview_resampling,
+               "BIGTIFF": "IF_SAFER", "NUM_THREADS": "1"}
+    if compress.upper() in ("DEFLATE", "LZW", "ZSTD"):
+        options["PREDICTOR"] = "FLOATING_POINT" if floating else "YES"
+    part = dst.with_name(dst.name + ".part")
+    rio_copy(src, part, driver="COG", **options)
+    os.replace(part, dst)
+    return dst

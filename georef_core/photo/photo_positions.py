@@ -6,8 +6,9 @@
   / ``RtkStdHgt`` (floored at 5 mm), the fix state from ``RtkFlag`` (50 fixed, 34 float, 16 single).
   ``AbsoluteAltitude`` is read as the WGS84 ellipsoidal height, which is what RTK aircraft record when
   their RTK service gives ellipsoidal heights; some firmware writes a geoid height there: survey.json's
-  ``photo_heights: "egm96"`` says so (then the heights are refused rather than used wrongly: the geoid
-  model is not shipped yet).
+  ``photo_heights: "egm96"`` (or any vertical datum georef_core.datums knows: ``egm2008``, ``EPSG:code``)
+  says so, and each height is converted to the ellipsoidal one (h = H + N, the geoid undulation N through
+  PROJ with the installed grid) before use; without the grid the survey is refused, never placed 30-50 m off.
 * Plain EXIF GPS (any other drone): the navigation-grade receiver's position, weighted honestly at
   3 m horizontally and 5 m vertically (a consumer receiver and barometric height); such a result's
   absolute position rests on its control points where it has some, else on these metre-level positions,
@@ -68,9 +69,13 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
     from .dji_xmp import read_dji_xmp
     from .images import read_image_info
 
+    from ..datums.vertical_datum import resolve as resolve_datum
+
     image_dir = Path(image_dir)
-    if height_datum not in ("ellipsoidal", "egm96"):
-        raise InputFileError(image_dir, f"photo height datum {height_datum!r}: ellipsoidal or egm96")
+    try:
+        datum = resolve_datum(height_datum)
+    except ValueError as exc:
+        raise InputFileError(image_dir, f"photo height datum (survey.json photo_heights): {exc}") from None
     rtk, exif = {}, {}
     times = {}
     for name in names:
@@ -93,9 +98,8 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
     warnings: list[str] = []
     out_names, pos, cov, status = [], [], [], []
     if rtk:
-        if height_datum != "ellipsoidal":
-            raise InputFileError(image_dir, "the photos' heights are geoid (EGM96) heights: the geoid model is not "
-                                            "available here; give the raw GNSS log (PPK) or ellipsoidal heights")
+        if not datum.is_ellipsoidal:
+            _to_ellipsoidal(rtk, datum, "gps_latitude_deg", "gps_longitude_deg", "absolute_altitude_m")
         missing = [n for n in names if n not in rtk]
         if missing:
             warnings.append(f"{len(missing)} photo(s) without RTK tags used without a position "
@@ -121,6 +125,8 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
                             f"({', '.join(list(not_fixed)[:5])}{' ...' if len(not_fixed) > 5 else ''})")
         kind = "rtk"
     else:
+        if not datum.is_ellipsoidal:
+            _to_ellipsoidal(exif, datum, "gps_lat_deg", "gps_lon_deg", "gps_alt_m")
         for name in names:
             info = exif.get(name)
             if info is None:
@@ -134,3 +140,18 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
     t = np.array([times.get(n, np.nan) for n in out_names], dtype=float)
     return PhotoPositions(out_names, np.asarray(pos, dtype=float).reshape(-1, 3), np.asarray(cov).reshape(-1, 3, 3),
                           np.asarray(status, dtype=int), t, kind, warnings)
+
+
+def _to_ellipsoidal(records: dict, datum, lat_attr: str, lon_attr: str, height_attr: str) -> None:
+    """The photos' heights in ``datum`` replaced, in place (copies of the records), by ellipsoidal heights."""
+    import dataclasses
+
+    from ..datums.vertical_datum import orthometric_to_ellipsoidal
+
+    names = list(records)
+    lat = np.array([getattr(records[n], lat_attr) for n in names], float)
+    lon = np.array([getattr(records[n], lon_attr) for n in names], float)
+    hgt = np.array([getattr(records[n], height_attr) for n in names], float)
+    h = orthometric_to_ellipsoidal(datum, lat, lon, hgt)
+    for n, v in zip(names, h):
+        records[n] = dataclasses.replace(records[n], **{height_attr: float(v)})
