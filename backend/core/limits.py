@@ -65,6 +65,8 @@ class ConcurrencyLimit:
 # ------------------------------------------------------------------------------------------ request bodies
 
 _UPLOAD_CHUNK_PATH = re.compile(r"^/api/v1/uploads/[^/]+/?$")
+# a site's design surface file (LandXML / DXF / GeoTIFF) is sent whole: it may be as large as an upload chunk
+_DESIGN_FILE_PATH = re.compile(r"^/api/v1/sites/[^/]+/design/file/?$")
 MEMORY_BODY_BYTES = 1024 * 1024     # larger bodies (upload chunks) are spooled to a file while they arrive
 
 
@@ -93,7 +95,8 @@ class RequestBodyGuard:
         self.spool_dir = settings.resolved_work_dir() / "tmp"
 
     def _limit(self, scope) -> int:
-        if scope.get("method") == "PUT" and _UPLOAD_CHUNK_PATH.match(scope.get("path", "")):
+        if scope.get("method") == "PUT" and (_UPLOAD_CHUNK_PATH.match(scope.get("path", ""))
+                                             or _DESIGN_FILE_PATH.match(scope.get("path", ""))):
             return self.max_chunk
         return self.max_body
 

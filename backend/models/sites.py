@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from sqlalchemy import JSON, Boolean, ForeignKey, String, Text, UniqueConstraint
+from sqlalchemy import JSON, BigInteger, Boolean, ForeignKey, String, Text, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
 from .base import Base, IdMixin, TimestampMixin, VersionMixin
@@ -65,3 +65,26 @@ class Schedule(IdMixin, TimestampMixin, VersionMixin, Base):
     pending_survey_ids: Mapped[list] = mapped_column(JSON, default=list)   # new-data triggers waiting
     pending_since: Mapped[datetime | None] = mapped_column(default=None)
     last_run_at: Mapped[datetime | None] = mapped_column(default=None)
+
+
+class SiteDesign(TimestampMixin, VersionMixin, Base):
+    """The site's design surface (one per site): the file (LandXML, DXF or GeoTIFF, content-addressed in storage
+    like survey files, checked by georef_core's reader at upload), the area compared (GeoJSON Polygon or
+    MultiPolygon in the site CRS) and the on-grade tolerance. The design step of every run reads it."""
+
+    __tablename__ = "site_designs"
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), primary_key=True)
+    filename: Mapped[str] = mapped_column(String(255))
+    format: Mapped[str] = mapped_column(String(16))                  # landxml | dxf | geotiff
+    sha256: Mapped[str] = mapped_column(String(64))
+    size: Mapped[int] = mapped_column(BigInteger)
+    surface_name: Mapped[str | None] = mapped_column(String(200), default=None)   # LandXML: which surface
+    described: Mapped[dict] = mapped_column(JSON, default=dict)      # what the reader found (kind, extent, notes)
+    area: Mapped[dict | None] = mapped_column(JSON, default=None)    # GeoJSON geometry, site CRS
+    tolerance_m: Mapped[float] = mapped_column(default=0.05)
+    uploaded_by: Mapped[str | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), default=None)
+
+    @property
+    def id(self) -> str:
+        """The ETag's stem (core/etag.version_etag): not the site's own."""
+        return "d" + self.site_id

@@ -227,6 +227,22 @@ def _rasterize_triangles(tri, pu, pv, pz, nrows, ncols, cov, cell_area, out, ass
                     ck[c] += w * l3 * cell_area
 
 
+def rasterize_tin(points_uvz: np.ndarray, triangles: np.ndarray, nrows: int, ncols: int):
+    """Linear interpolation of a TIN at the cell centres of an ``nrows x ncols`` grid: ``points_uvz`` (n, 3)
+    in pixel coordinates of the grid (column, row, height), ``triangles`` (m, 3) vertex indices. Returns
+    (heights float32 with NaN where no triangle holds the cell centre, boolean mask of covered cells)."""
+    tri = np.ascontiguousarray(triangles, dtype=np.int64)
+    out = np.full((nrows, ncols), np.nan, np.float32)
+    assigned = np.zeros((nrows, ncols), np.bool_)
+    if len(tri) and nrows and ncols:
+        pu = np.ascontiguousarray(points_uvz[:, 0], dtype=np.float64)
+        pv = np.ascontiguousarray(points_uvz[:, 1], dtype=np.float64)
+        pz = np.ascontiguousarray(points_uvz[:, 2], dtype=np.float64)
+        cov = np.zeros((nrows, ncols), np.float32)  # no integral weights wanted: coverage 0 everywhere
+        _rasterize_triangles(tri, pu, pv, pz, nrows, ncols, cov, 0.0, out, assigned, np.zeros(len(pu)))
+    return out, assigned
+
+
 @dataclass
 class TinBase(BaseSurface):
     """Linear interpolation over the Delaunay triangulation of points (x, y, z) in the DSM CRS; cells

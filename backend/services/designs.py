@@ -1,0 +1,269 @@
+"""A site's design surface: the file (LandXML, DXF or GeoTIFF; checked by georef_core's reader when it is
+uploaded and stored content-addressed like survey files), the area compared (GeoJSON, site CRS) and the
+on-grade tolerance. The design step of every run reads it (jobs.run_context -> worker materialise ->
+pipeline context "design"); design_progress lists its results over the site's surveys. docs/design.md."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tempfile
+from pathlib import Path
+
+from sqlalchemy import select
+
+from ..core.problems import NotFound, Unprocessable
+from ..models import Run, RunStep, SiteDesign, Survey
+from .context import Ctx
+from .permissions import require_site
+from .sites import check_if_match
+
+MAX_AREA_VERTICES = 100_000
+FORMATS = ("landxml", "dxf", "geotiff")
+# what design_progress keeps of each run's design summary (georef_core/steps/design.py summary_of)
+PROGRESS_KEYS = ("cut_m3", "fill_m3", "net_m3", "area_m2", "tolerance_m", "on_grade_share", "on_grade_expected_share",
+                 "not_significant_m2", "cut_beyond_tolerance_m3", "fill_beyond_tolerance_m3", "noise_inflation_m3",
+                 "sigma_cell_m", "surface")
+
+
+def design_key(d: SiteDesign) -> str:
+    """Identifies the design as a run compares with it: the file, the LandXML surface and the area (the
+    tolerance is a run's figure, reported with each result). The design step's summary carries it."""
+    from .runs import canonical_json
+
+    doc = {"sha256": d.sha256, "surface_name": d.surface_name, "area": d.area}
+    return hashlib.sha256(canonical_json(doc).encode()).hexdigest()[:24]
+
+
+def _area_m2(area: dict | None) -> float | None:
+    if not area:
+        return None
+    from shapely.geometry import shape
+
+    return round(float(shape(area).area), 3)
+
+
+def design_out(d: SiteDesign) -> dict:
+    return {"site_id": d.site_id, "filename": d.filename, "format": d.format, "sha256": d.sha256, "size": d.size,
+            "surface_name": d.surface_name, "described": d.described or {}, "area": d.area,
+            "area_m2": _area_m2(d.area), "tolerance_m": d.tolerance_m, "key": design_key(d),
+            "created_at": d.created_at, "updated_at": d.updated_at, "version": d.version}
+
+
+def _format_of(path: Path, kind: str) -> str:
+    if kind == "grid":
+        return "geotiff"
+    with open(path, "rb") as f:
+        head = f.read(4096).lstrip(b"\xef\xbb\xbf").lstrip()
+    return "landxml" if head.startswith(b"<") else "dxf"
+
+
+def read_design_file(path: Path, filename: str, surface_name: str | None, site_crs: str) -> dict:
+    """The design read by georef_core's reader, as at run time: {format, described (kind, name, CRS, points,
+    triangles, notes, extent in the site CRS)}. A file the reader refuses: 422 naming the file and the
+    problem."""
+    from pyproj import CRS
+
+    from georef_core.design.design_surface import read_design
+    from georef_core.errors import InputFileError, ProcessingError
+
+    try:
+        design = read_design(path, surface_name, site_crs)
+        design.prepare(CRS.from_user_input(site_crs))
+        described = design.describe()
+        bounds = design.bounds()
+    except InputFileError as exc:
+        raise Unprocessable(f"{filename}: {exc.problem}", slug="bad-design") from None
+    except ProcessingError as exc:
+        raise Unprocessable(f"{filename}: {exc}", slug="bad-design") from None
+    except (ValueError, OSError, UnicodeDecodeError) as exc:   # a reader's library refusing the content
+        raise Unprocessable(f"{filename}: not a readable design surface ({type(exc).__name__}: {exc})",
+                            slug="bad-design") from None
+    described.pop("path", None)                              # a temporary path of the API, not the user's
+    rs = getattr(design, "_resampler", None)
+    if bounds is None and rs is not None:       # a grid: its extent, in the site CRS
+        from pyproj import Transformer
+
+        bounds = rs.info.bounds
+        if not rs.same_crs:
+            bounds = Transformer.from_crs(rs.info.crs, rs.dst_crs, always_xy=True).transform_bounds(*bounds)
+    if bounds is not None and all(math.isfinite(v) for v in bounds):
+        described["extent"] = [round(float(v), 3) for v in bounds]
+    return {"format": _format_of(path, design.kind), "described": described}
+
+
+def validate_area(area: dict, extent: list | None) -> dict:
+    """A GeoJSON Polygon or MultiPolygon in the site CRS (metres), valid, with area, overlapping the design."""
+    from shapely.geometry import box, shape
+
+    if not isinstance(area, dict) or area.get("type") not in ("Polygon", "MultiPolygon"):
+        raise Unprocessable("area: a GeoJSON Polygon or MultiPolygon (coordinates in the site CRS, metres) expected")
+    coords = area.get("coordinates")
+    rings = coords if area["type"] == "Polygon" else [r for p in (coords or []) if isinstance(p, list) for r in p]
+    if not isinstance(rings, list) or not rings or not all(isinstance(r, list) for r in rings):
+        raise Unprocessable("area: coordinates must be rings (lists of [x, y] positions)")
+    n = sum(len(r) for r in rings)
+    if n > MAX_AREA_VERTICES:
+        raise Unprocessable(f"area: {n} vertices; at most {MAX_AREA_VERTICES} are accepted: simplify the outline",
+                            slug="too-many-vertices")
+    if not all(isinstance(pt, list) and 2 <= len(pt) <= 3 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in pt)
+            for r in rings for pt in r):
+        raise Unprocessable("area: every position must be [x, y] or [x, y, z] finite numbers")
+    try:
+        geom = shape(area)
+    except Exception as exc:   # shapely raises several types on malformed coordinates
+        raise Unprocessable(f"area: malformed polygon ({exc})") from None
+    if geom.is_empty or not geom.is_valid or geom.area <= 0:
+        raise Unprocessable("area: the polygon is empty, self-intersecting or has no area")
+    if extent:
+        ext = box(*extent)
+        if not geom.intersects(ext):
+            x0, y0, x1, y1 = geom.bounds
+            raise Unprocessable(f"area: the polygon ({x0:.1f}, {y0:.1f} - {x1:.1f}, {y1:.1f}) lies outside the "
+                                f"design surface ({extent[0]:.1f}, {extent[1]:.1f} - {extent[2]:.1f}, "
+                                f"{extent[3]:.1f}; site CRS): are both in the site CRS?")
+    return {"type": area["type"], "coordinates": _floats(coords)}
+
+
+def _floats(c):
+    if isinstance(c, list) and c and isinstance(c[0], (int, float)):
+        return [float(v) for v in c[:3]]
+    return [_floats(x) for x in c]
+
+
+def _get(ctx: Ctx, site_id: str, role: str) -> SiteDesign:
+    require_site(ctx, site_id, role)
+    d = ctx.db.get(SiteDesign, site_id)
+    if d is None:
+        raise NotFound("this site has no design surface: upload one (PUT /api/v1/sites/{id}/design/file)",
+                       slug="no-design")
+    return d
+
+
+def require_editor(ctx: Ctx, site_id: str) -> None:
+    """Before a design file's bytes are received: only an editor may send one."""
+    require_site(ctx, site_id, "editor")
+
+
+def upload_design(ctx: Ctx, site_id: str, filename: str, path: Path, surface_name: str | None = None,
+                  if_match: str | None = None) -> SiteDesign:
+    """Store ``path`` as the site's design surface (replacing the one before; the area and tolerance stay)."""
+    from .uploads import sanitise_filename
+
+    site = require_site(ctx, site_id, "editor")
+    name = sanitise_filename(filename)
+    d = ctx.db.get(SiteDesign, site_id)
+    if d is not None:
+        check_if_match(d, if_match)
+    surface_name = (surface_name or "").strip() or None
+    read = read_design_file(path, name, surface_name, site.crs)
+    sha, size = ctx.storage.put_blob(path)
+    if d is None:
+        d = SiteDesign(site_id=site_id, tolerance_m=0.05, version=0)
+        ctx.db.add(d)
+    d.filename, d.format, d.sha256, d.size = name, read["format"], sha, size
+    d.surface_name, d.described = surface_name, read["described"]
+    d.uploaded_by = ctx.user.id
+    d.version = (d.version or 0) + 1
+    if d.area is not None:
+        validate_area(d.area, d.described.get("extent"))
+    ctx.db.flush()
+    return d
+
+
+def get_design(ctx: Ctx, site_id: str) -> SiteDesign:
+    return _get(ctx, site_id, "viewer")
+
+
+def update_design(ctx: Ctx, site_id: str, changes: dict, if_match: str | None = None) -> SiteDesign:
+    """The area, the tolerance, or which LandXML surface (the stored file is read again with it)."""
+    d = _get(ctx, site_id, "editor")
+    check_if_match(d, if_match)
+    if "surface_name" in changes and (changes["surface_name"] or None) != d.surface_name:
+        site = require_site(ctx, site_id, "editor")
+        name = (changes["surface_name"] or "").strip() or None
+        with tempfile.TemporaryDirectory(dir=_tmp_dir(ctx)) as tmp:
+            local = Path(tmp) / d.filename
+            from ..storage import blob_key
+
+            ctx.storage.fetch(blob_key(d.sha256), local)
+            d.described = read_design_file(local, d.filename, name, site.crs)["described"]
+        d.surface_name = name
+    if changes.get("area") is not None:
+        d.area = validate_area(changes["area"], (d.described or {}).get("extent"))
+    if changes.get("tolerance_m") is not None:
+        d.tolerance_m = float(changes["tolerance_m"])
+    d.version += 1
+    ctx.db.flush()
+    return d
+
+
+def delete_design(ctx: Ctx, site_id: str, if_match: str | None = None) -> None:
+    d = _get(ctx, site_id, "editor")
+    check_if_match(d, if_match)
+    ctx.db.delete(d)
+    ctx.db.flush()
+
+
+def _tmp_dir(ctx: Ctx) -> Path:
+    p = ctx.settings.resolved_work_dir() / "tmp"
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def design_context(s, site_id: str) -> dict | None:
+    """What a run's design step needs (jobs.run_context "design"): the stored file by checksum, the area,
+    the tolerance and the key the step's summary carries back. None: no design, or no area yet."""
+    d = s.get(SiteDesign, site_id)
+    if d is None:
+        return None
+    return {"sha256": d.sha256, "filename": d.filename, "format": d.format, "surface_name": d.surface_name,
+            "area": d.area, "tolerance_m": d.tolerance_m, "key": design_key(d), "name": Path(d.filename).stem}
+
+
+def design_progress(ctx: Ctx, site_id: str) -> dict:
+    """The site's design against every survey's latest successful run that compared with it (this file,
+    surface and area), oldest flight first: cut, fill, net with their 1-sigma, on-grade share. Surveys
+    without such a run are listed with the reason."""
+    d = _get(ctx, site_id, "viewer")
+    key = design_key(d)
+    surveys = list(ctx.db.scalars(select(Survey).where(Survey.site_id == site_id)))
+    rows = ctx.db.execute(
+        select(Run.id, Run.number, Run.survey_id, Run.finished_at, RunStep.summary, RunStep.state)
+        .join(RunStep, RunStep.run_id == Run.id)
+        .where(Run.site_id == site_id, Run.state == "succeeded", RunStep.name == "design",
+               RunStep.state.in_(("succeeded", "skipped")))
+        .order_by(Run.survey_id, Run.number.desc())).all()
+    latest: dict[str, tuple] = {}
+    other_design: set[str] = set()
+    for run_id, number, survey_id, finished_at, summary, _state in rows:
+        if not isinstance(summary, dict) or summary.get("skipped"):
+            continue
+        if summary.get("design_key") != key:
+            other_design.add(survey_id)
+            continue
+        latest.setdefault(survey_id, (run_id, number, finished_at, summary))
+    entries, missing = [], []
+    for sv in surveys:
+        hit = latest.get(sv.id)
+        base = {"survey_id": sv.id, "survey_name": sv.name, "flown_at": sv.flown_at}
+        if hit is None:
+            missing.append({**base, "reason": (
+                "its runs compared with another design, area or surface: process it again" if sv.id in other_design
+                else "no successful run with the design step")})
+            continue
+        run_id, number, finished_at, summary = hit
+        entry = {**base, "run_id": run_id, "run_number": number, "processed_at": finished_at}
+        entry.update({k: summary.get(k) for k in PROGRESS_KEYS})
+        entry["sigma_m3"] = summary.get("sigma_m3") or {}
+        entry["warnings"] = summary.get("warnings") or []
+        entries.append(entry)
+    order = lambda e: (e["flown_at"] is None, e["flown_at"].isoformat() if e["flown_at"] else "", e["survey_name"])  # noqa: E731
+    entries.sort(key=order)
+    missing.sort(key=order)
+    return {"design": {"filename": d.filename, "format": d.format, "sha256": d.sha256, "key": key,
+                       "surface_name": d.surface_name, "area_m2": _area_m2(d.area), "tolerance_m": d.tolerance_m},
+            "conventions": "cut_m3: surveyed above design (to remove); fill_m3: below design (to place); net_m3 = "
+                           "cut - fill; sigma_m3: 1 sigma; on_grade_share: share of the area within +- tolerance_m",
+            "surveys": entries, "not_compared": missing}
