@@ -31,13 +31,20 @@ def register(sub) -> None:
     p = sub.add_parser("volume", help="cut / fill / net volume of polygons on a DSM, with uncertainty",
                        description="Cut (material above the base), fill (void below it) and net volume of each "
                                    "polygon of a GeoJSON file on a DSM, with a 1-sigma and 95 % uncertainty.")
-    p.add_argument("--dsm", required=True, help="DSM GeoTIFF (projected CRS in metres)")
+    p.add_argument("--dsm", help="DSM GeoTIFF (projected CRS in metres; a DTM works the same)")
+    p.add_argument("--run", metavar="OUT_DIR", help="instead of --dsm: a run folder, measured on its dense/dsm.tif or, "
+                                                    "with --surface dtm, its dtm/dtm.tif")
+    p.add_argument("--surface", choices=("dsm", "dtm"), default="dsm",
+                   help="with --run: the DSM (default) or the bare-earth DTM (georef dtm: machines removed)")
     p.add_argument("--polygon", required=True, help="GeoJSON polygon(s), any CRS; one result per feature ('name')")
     p.add_argument("--base", default="lowest", help=BASE_HELP)
     p.add_argument("--percentile", type=float, help="percentile of the outline heights for lowest/highest "
                                                     "(default 2 / 98)")
     p.add_argument("--max-fill", type=float, default=5.0, metavar="PERCENT",
                    help="fill DSM holes inside a polygon by interpolation up to this %% of its area (default 5)")
+    p.add_argument("--accept-interpolated", action="store_true",
+                   help="count interpolated DSM cells (dsm_filled_mask.tif: 1, or no-data filled here) as measured in "
+                        "the uncertainty; default: they are reported apart with their own bound")
     p.add_argument("--surface-sigma", type=float, metavar="M", help="noise of a surface: base (default: its "
                                                                     "dense_summary.json, else taken as exact)")
     _noise_arguments(p)
@@ -135,8 +142,21 @@ def cmd_volume(args) -> int:
 
     if not 0 <= args.max_fill <= 100:
         raise GeorefError("--max-fill must be a percentage (0-100)")
+    if (args.dsm is None) == (args.run is None):
+        raise GeorefError("give the surface with --dsm FILE or a run folder with --run OUT_DIR (one of them)")
+    if args.dsm is not None and args.surface != "dsm":
+        raise GeorefError("--surface picks a run folder's raster: use it with --run (or give the DTM file to --dsm)")
+    if args.run is not None:
+        from pathlib import Path
+
+        args.dsm = str(Path(args.run) / ("dtm/dtm.tif" if args.surface == "dtm" else "dense/dsm.tif"))
+        if not Path(args.dsm).is_file():
+            from ..errors import InputFileError
+
+            raise InputFileError(args.dsm, "not found: run " + ("georef dtm" if args.surface == "dtm" else "georef dense")
+                                 + f" {args.run} first")
     opts = VolumeOptions(percentile=args.percentile, max_fill_fraction=args.max_fill / 100.0,
-                         surface_sigma_m=args.surface_sigma)
+                         surface_sigma_m=args.surface_sigma, accept_interpolated=args.accept_interpolated)
     doc = run_volumes(args.dsm, args.polygon, args.out, base=args.base, dsm_sigma_m=args.dsm_sigma,
                       height_bias_m=args.height_bias, correlation_length_m=args.corr_length,
                       polygon_crs=args.polygon_crs, options=opts)

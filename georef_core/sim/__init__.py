@@ -3,7 +3,7 @@
 Deterministic from a seed. Entry point: :func:`simulate_site`. Modules:
 
 * :mod:`.geo` project CRS / ECEF / local ENU frames of the site
-* :mod:`.site`, :mod:`.stockpiles` terrain, pit, roads, analytic stockpiles, targets
+* :mod:`.site`, :mod:`.stockpiles`, :mod:`.machines` terrain, pit, roads, analytic stockpiles, targets, machines
 * :mod:`.texture` procedural ground texture with baked sun shading
 * :mod:`.flight` flight plan, true antenna trajectory and attitude, camera events
 * :mod:`.camera` pinhole + Brown distortion camera

@@ -191,6 +191,7 @@ def plan_flight(site, camera: CameraModel, o: FlightOptions) -> FlightPlan:
             ok = all(pl.footprint_sdf(*to) > 4.0 for pl in site.piles)
             ok = ok and (site.pit is None or site.pit_sdf(*to) > 3.0)
             ok = ok and all(math.hypot(t.x - to[0], t.y - to[1]) > 4.0 for t in site.targets)
+            ok = ok and all(float(m.footprint_sdf(*to)) > 4.0 for m in getattr(site, "machines", ()))
             if ok:
                 break
             to = to * 0.97

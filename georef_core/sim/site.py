@@ -2,8 +2,10 @@
 
 Everything is a closed-form function of site coordinates ``(x, y)`` (grid offsets in metres from the
 site origin ``(E0, N0)`` of the project CRS) returning ellipsoidal heights (m). ``Site.surface`` is the
-truth surface (what the DSM samples and what is rendered); ``Site.ground`` is the same without the
-stockpiles; ``Site.terrain`` is the natural terrain before the stockpile pads are levelled.
+truth surface (what the DSM samples and what is rendered); ``Site.bare_earth`` is the surface without the
+machines (``SiteOptions.machines``; stockpiles are bare earth: what a DTM keeps); ``Site.ground`` is the
+bare earth without the stockpiles; ``Site.terrain`` is the natural terrain before the stockpile pads are
+levelled. Without machines (the default) ``surface`` and ``bare_earth`` are the same.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .geo import SiteFrame, utm_epsg_for
+from .machines import MACHINE_KINDS, Machine, make_machine
 from .stockpiles import MATERIALS, Stockpile, make_pile
 
 DEFAULT_PILES = ("cone", "frustum", "windrow", "hip", "slope_cone")
@@ -47,6 +50,10 @@ class SiteOptions:
     n_control: int = 5  # targets used as control (corners + centre first), the rest are check points
     target_size_m: float = 1.0  # side of the square (2x2 checker) target
     target_margin_m: float = 6.0  # targets kept this far inside the work area
+    # machines (trucks, excavators, boxes: blocks with vertical sides, 2.5-4 m tall, 3-10 m footprints) parked on
+    # open ground, away from the piles, the pit, the roads and the targets; 0 (the default) keeps a site as it was
+    machines: int = 0
+    machine_kinds: tuple[str, ...] = MACHINE_KINDS
 
 
 @dataclass
@@ -127,6 +134,8 @@ class Site:
         self.half_h = 0.5 * float(o.size_m[1])
         scale = o.stockpile_scale if o.stockpile_scale is not None else min(1.0, min(o.size_m) / 100.0)
         self.scale = float(scale)
+        self.machines: list[Machine] = []  # placed last, from their own random stream (sites without keep their draws)
+        self.machines_requested = int(o.machines)
 
         # ---- natural terrain ---------------------------------------------------------------
         az = rng.uniform(0, 2 * np.pi)
@@ -169,6 +178,8 @@ class Site:
 
         # ---- targets --------------------------------------------------------------------------------
         self.targets: list[Target] = self._place_targets(rng)
+        if o.machines > 0:
+            self.machines = self._place_machines(np.random.default_rng(np.random.SeedSequence([self.seed, 102])))
 
     def _layout(self, rng) -> bool:
         """One random try at placing the roads, the pit and the stockpiles; False when something did not fit."""
@@ -349,6 +360,55 @@ class Site:
                 return False
         return True
 
+    def _place_machines(self, rng) -> list[Machine]:
+        """Up to ``options.machines`` machines on open ground: inside the work area (3 m margin), 3 m clear of the
+        piles' blend zones, the pit, the roads and their ditches, the targets and each other. Machines that do not
+        fit after 400 tries are left out (``machines_requested`` keeps the number asked for)."""
+        o = self.options
+        kinds = tuple(o.machine_kinds) or MACHINE_KINDS
+        placed: list[Machine] = []
+        for i in range(int(o.machines)):
+            m = make_machine(kinds[int(rng.integers(0, len(kinds)))], f"M{i + 1:02d}", rng)
+            for _ in range(400):
+                m.cx, m.cy = float(rng.uniform(-self.half_w, self.half_w)), float(rng.uniform(-self.half_h, self.half_h))
+                m.heading_rad = float(rng.uniform(0, 2 * np.pi))
+                if self._machine_ok(m, placed):
+                    break
+            else:
+                continue
+            pts = m.outline_points(0.5)
+            inner = np.stack(m.to_site(*np.meshgrid(np.linspace(-1, 1, 5) * m.bounding_radius,
+                                                    np.linspace(-1, 1, 5) * m.bounding_radius)), -1).reshape(-1, 2)
+            inner = inner[m.footprint_sdf(inner[:, 0], inner[:, 1]) <= 0]
+            allp = np.concatenate([pts, inner])
+            m.base_z = float(np.max(self.bare_earth(allp[:, 0], allp[:, 1])))
+            placed.append(m)
+        return placed
+
+    def _machine_ok(self, m: Machine, placed: list[Machine]) -> bool:
+        o = self.options
+        if abs(m.cx) > self.half_w - 3.0 or abs(m.cy) > self.half_h - 3.0:
+            return False  # quick rejection: the centre is outside the margin already
+        pts = m.outline_points(0.5)
+        if np.any(np.abs(pts[:, 0]) > self.half_w - 3.0) or np.any(np.abs(pts[:, 1]) > self.half_h - 3.0):
+            return False
+        for p in self.piles:
+            if np.min(p.footprint_sdf(pts[:, 0], pts[:, 1])) < o.pad_margin_m + o.pad_blend_m + 3.0:
+                return False
+        if self.pit is not None and np.min(self.pit_sdf(pts[:, 0], pts[:, 1])) < 3.0:
+            return False
+        for road in self.roads:
+            sd = road.signed_distance(pts[:, 0], pts[:, 1])
+            if np.min(np.abs(sd)) < road.width / 2 + 3.0 or np.ptp(np.sign(sd)) > 0:
+                return False
+        for t in self.targets:
+            if float(m.footprint_sdf(t.x, t.y)) < t.size_m + 3.0:
+                return False
+        for other in placed:
+            if np.min(other.footprint_sdf(pts[:, 0], pts[:, 1])) < 3.0:
+                return False
+        return True
+
     # ---- height functions ------------------------------------------------------------------------
     def terrain(self, x, y) -> np.ndarray:
         """Natural terrain (before pads and stockpiles), ellipsoidal height."""
@@ -403,8 +463,8 @@ class Site:
             z[m] = w * p.base_height(xm, ym) + (1.0 - w) * z[m]
         return z
 
-    def surface(self, x, y) -> np.ndarray:
-        """The truth surface: ground plus stockpiles (ellipsoidal height, m)."""
+    def bare_earth(self, x, y) -> np.ndarray:
+        """Ground plus stockpiles, without the machines: the truth of a bare-earth DTM (ellipsoidal height, m)."""
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
         z = self.ground(x, y)
         for p in self.piles:
@@ -413,14 +473,39 @@ class Site:
                 z[m] += p.height(x[m], y[m])
         return z if z.ndim else float(z)
 
-    def surface_grid(self, x0: float, y0: float, nx: int, ny: int, step: float, block_rows: int = 256) -> np.ndarray:
-        """``surface`` at ``(x0 + j*step, y0 + i*step)``, shape (ny, nx), evaluated by row blocks."""
+    def surface(self, x, y) -> np.ndarray:
+        """The truth surface: ground plus stockpiles plus machines (ellipsoidal height, m)."""
+        z = self.bare_earth(x, y)
+        if not self.machines:
+            return z
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        z = np.array(z, dtype=float)
+        for mc in self.machines:
+            r = mc.bounding_radius + 0.1
+            near = (np.abs(x - mc.cx) <= r) & (np.abs(y - mc.cy) <= r)
+            if np.any(near):
+                z[near] = np.maximum(z[near], mc.top(x[near], y[near]))
+        return z if z.ndim else float(z)
+
+    def machine_index(self, x, y) -> np.ndarray:
+        """Index of the machine standing on each point (inside its footprint), -1 elsewhere."""
+        x = np.asarray(x, dtype=float)
+        out = np.full(np.broadcast(x, np.asarray(y)).shape, -1, dtype=np.int16)
+        for i, mc in enumerate(self.machines):
+            out[mc.footprint_sdf(x, y) <= 0] = i
+        return out
+
+    def surface_grid(self, x0: float, y0: float, nx: int, ny: int, step: float, block_rows: int = 256,
+                     fn=None) -> np.ndarray:
+        """``surface`` (or ``fn``, e.g. ``bare_earth``) at ``(x0 + j*step, y0 + i*step)``, shape (ny, nx),
+        evaluated by row blocks."""
+        fn = fn or self.surface
         out = np.empty((ny, nx), dtype=np.float64)
         xs = x0 + np.arange(nx) * step
         for i0 in range(0, ny, block_rows):
             ys = y0 + np.arange(i0, min(ny, i0 + block_rows)) * step
             xx, yy = np.meshgrid(xs, ys)
-            out[i0:i0 + len(ys)] = self.surface(xx, yy)
+            out[i0:i0 + len(ys)] = fn(xx, yy)
         return out
 
     def pile_index(self, x, y) -> np.ndarray:
@@ -463,6 +548,8 @@ class Site:
             "roads": [asdict(r) for r in self.roads],
             "stockpiles": [p.to_dict() for p in self.piles],
             "targets": [asdict(t) for t in self.targets],
+            **({"machines": [m.to_dict() for m in self.machines], "machines_requested": self.machines_requested}
+               if self.machines_requested else {}),
             "suggested_base_station": {
                 "site_xy_m": list(self.base_station_site_xy()),
                 "ground_h_m": float(self.surface(*self.base_station_site_xy())),

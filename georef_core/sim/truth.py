@@ -10,6 +10,8 @@ truth/ holds:
   CRS), attitude (camera to ECEF / ENU / project-grid axes), antenna state at the trigger.
 * ``intrinsics.json``, ``lever_arm_delay.json``, ``targets.csv``, ``stockpiles.geojson``,
   ``dsm.tif`` (float32 GeoTIFF of ellipsoidal heights in the project CRS), ``site.json``.
+* with machines on the site (``SiteOptions.machines``): ``machines.geojson`` (their blocks) and ``dtm.tif``
+  (the bare earth, machines left out, on the grid of ``dsm.tif``).
 """
 
 from __future__ import annotations
@@ -116,8 +118,10 @@ def camera_poses(trajectory: Trajectory, events: list[CameraEvent], lever_arm_ca
     return out
 
 
-def write_dsm(path, site, resolution_m: float, bounds_site: tuple[float, float, float, float]) -> dict:
-    """Truth DSM (surface sampled at cell centres), float32 GeoTIFF in the project CRS, ellipsoidal heights.
+def write_dsm(path, site, resolution_m: float, bounds_site: tuple[float, float, float, float],
+              bare_earth: bool = False) -> dict:
+    """Truth DSM (surface sampled at cell centres), float32 GeoTIFF in the project CRS, ellipsoidal heights;
+    ``bare_earth``: the truth DTM instead (``Site.bare_earth``: the machines left out).
 
     The grid is aligned on multiples of the resolution in project-CRS coordinates."""
     import rasterio
@@ -134,7 +138,8 @@ def write_dsm(path, site, resolution_m: float, bounds_site: tuple[float, float, 
     height = int(round((n_max - n_min) / r))
     x0 = e_min - f.origin_e + 0.5 * r
     y_top = n_max - f.origin_n - 0.5 * r
-    z = site.surface_grid(x0, y_top - (height - 1) * r, width, height, r)[::-1].astype(np.float32)
+    z = site.surface_grid(x0, y_top - (height - 1) * r, width, height, r,
+                          fn=site.bare_earth if bare_earth else None)[::-1].astype(np.float32)
     profile = {
         "driver": "GTiff", "width": width, "height": height, "count": 1, "dtype": "float32",
         "crs": f"EPSG:{f.epsg}", "transform": Affine(r, 0.0, e_min, 0.0, -r, n_max),
@@ -143,7 +148,8 @@ def write_dsm(path, site, resolution_m: float, bounds_site: tuple[float, float, 
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(z, 1)
         ds.update_tags(AREA_OR_POINT="Area", VERTICAL="WGS84 ellipsoidal height, metres",
-                       SOURCE="georef_core.sim truth surface sampled at cell centres")
+                       SOURCE="georef_core.sim truth " + ("bare earth (no machines)" if bare_earth else "surface")
+                       + " sampled at cell centres")
         ds.set_band_description(1, "ellipsoidal height (m)")
     return {"file": Path(path).name, "resolution_m": r, "width": width, "height": height,
             "bounds_crs": [e_min, n_min, e_max, n_max], "epsg": f.epsg}
@@ -252,6 +258,11 @@ def write_truth(truth_dir, site, plan: FlightPlan, trajectory: Trajectory, event
     write_targets_csv(d / "targets.csv", site)
     write_json(d / "stockpiles.geojson", stockpiles_geojson(site))
     dsm = write_dsm(d / "dsm.tif", site, dsm_resolution_m, dsm_bounds_site)
+    if site.machines:
+        from .machines import machines_geojson
+
+        write_json(d / "machines.geojson", machines_geojson(site))
+        write_dsm(d / "dtm.tif", site, dsm_resolution_m, dsm_bounds_site, bare_earth=True)
     desc = site.to_dict()
     desc["flight_plan"] = {
         "line_bearing_deg": plan.line_bearing_deg, "line_spacing_m": plan.line_spacing_m,

@@ -109,6 +109,11 @@ def stockpile_record(stockpile: dict, base: str, result: dict) -> dict:
     base_info = result.get("base") or {}
     details = {k: v for k, v in result.items() if isinstance(v, (int, float, str, bool))}
     details.update({k: unc[k] for k in ("sigma_m3", "ci95_m3") if isinstance(unc.get(k), (int, float))})
+    # the survey-wide vertical bias term: common to every pile of the survey (the inventory's totals add it
+    # linearly across piles; deliverables/inventory.py)
+    bias = (unc.get("components_m3") or {}).get("height_bias_m3")
+    if isinstance(bias, (int, float)):
+        details["height_bias_m3"] = bias
     if isinstance(base_info.get("elevation_m"), (int, float)):
         details["base_elevation_m"] = base_info["elevation_m"]
     if result.get("warnings"):
@@ -131,11 +136,17 @@ def step_entry(workspace, options: dict, progress, context: dict) -> dict:
     vol_dir.mkdir(parents=True, exist_ok=True)
     opts = get_spec("volumes").validate(dict(options or {}))
     noise = {k: opts.pop(k) for k in ("dsm_sigma_m", "height_bias_m", "correlation_length_m") if k in opts}
+    surface = opts.pop("surface", None) or "dsm"
     records: list[dict] = []
     if piles:
-        dsm = workspace.path("dense", "dsm")
-        if not dsm.exists():
-            raise InputFileError(dsm, "no DSM: the dense step did not write dense/dsm.tif")
+        if surface == "dtm":  # the bare earth: a machine standing on a pile is not counted as material
+            dsm = workspace.path("dtm", "dtm")
+            if not dsm.exists():
+                raise InputFileError(dsm, "no DTM: volumes on the DTM (surface dtm) need the dtm step's dtm/dtm.tif")
+        else:
+            dsm = workspace.path("dense", "dsm")
+            if not dsm.exists():
+                raise InputFileError(dsm, "no DSM: the dense step did not write dense/dsm.tif")
         groups: dict[str, list[dict]] = {}
         for p in piles:
             groups.setdefault(p["base"], []).append(p)
@@ -156,5 +167,5 @@ def step_entry(workspace, options: dict, progress, context: dict) -> dict:
                 r = by_name.get(p["name"], doc["results"][k] if k < len(doc["results"]) else None)
                 if r is not None:
                     records.append(stockpile_record(p, base, r))
-    vol_path.write_text(json.dumps({"crs": crs, "units": "m3", "stockpiles": records}, indent=2))
-    return {"stockpiles": len(records)}
+    vol_path.write_text(json.dumps({"crs": crs, "units": "m3", "surface": surface, "stockpiles": records}, indent=2))
+    return {"stockpiles": len(records), "surface": surface}
