@@ -32,8 +32,29 @@ SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 _touch_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="token-touch")
 
 
-def authenticate(request: Request, db) -> Principal | None:
+def authenticate(request: Request, db, tiles: bool = False) -> Principal | None:
+    """The caller. `tiles`: a map-tile route, where a tile token (scope "tiles") is accepted, in the header
+    or, for GIS clients that cannot set headers, as `?token=` (docs/security.md); anywhere else a tile
+    token is refused, and no other token is taken from a URL."""
+    p = _authenticate(request, db, tiles)
+    if p is not None and p.tiles_only and not tiles:
+        raise Forbidden("a tile token only reads map tiles (/runs/{id}/tiles/..., /runs/{id}/wmts/...)",
+                        slug="tile-token")
+    return p
+
+
+def _authenticate(request: Request, db, tiles: bool) -> Principal | None:
     auth = request.headers.get("authorization", "")
+    url_token = request.query_params.get("token") if tiles else None
+    if url_token and not auth:
+        p = accounts.principal_from_token(db, url_token.strip())
+        if p is None:
+            raise Unauthorized("tile token unknown, expired or revoked", headers={"WWW-Authenticate": "Bearer"})
+        if not p.tiles_only:
+            raise Unauthorized("only a tile token (POST /api/v1/tokens/tile: read-only, expiring) may be sent in "
+                               "a URL; send other API tokens in the Authorization header",
+                               headers={"WWW-Authenticate": "Bearer"})
+        return p
     if auth:
         scheme, _, value = auth.partition(" ")
         if scheme.lower() != "bearer" or not value.strip():
@@ -79,13 +100,14 @@ class RequestCtx(Ctx):
 
     _request: Request
     _require_auth: bool
+    _tiles: bool = False
     _resolved: bool = False
 
     @property
     def principal(self) -> Principal | None:   # type: ignore[override]
         if not self._resolved:
             self._resolved = True
-            p = authenticate(self._request, self.db)
+            p = authenticate(self._request, self.db, self._tiles)
             if self._require_auth and p is None:
                 raise Unauthorized("authentication required: log in, or send 'Authorization: Bearer <API token>'",
                                    headers={"WWW-Authenticate": "Bearer"})
@@ -100,7 +122,7 @@ class RequestCtx(Ctx):
         self._resolved = value is not None
 
 
-def _dependency(require_auth: bool):
+def _dependency(require_auth: bool, tiles: bool = False):
     """The context dependency (one generator, so that FastAPI's throw() at the yield reaches the finally
     that ends the transaction at once: on SQLite a write transaction left open would block all writers)."""
 
@@ -109,7 +131,7 @@ def _dependency(require_auth: bool):
         read_only = request.method in SAFE_METHODS
         db = (state.database.read_sessionmaker if read_only else state.database.sessionmaker)()
         ctx = RequestCtx(db=db, settings=state.settings, storage=state.storage)
-        ctx._request, ctx._require_auth = request, require_auth
+        ctx._request, ctx._require_auth, ctx._tiles = request, require_auth, tiles
         try:
             yield ctx
             if not read_only:
@@ -133,7 +155,9 @@ def _close(db) -> None:
 
 get_ctx = _dependency(True)
 get_public_ctx = _dependency(False)
+get_tile_ctx = _dependency(True, tiles=True)
 
 
 CtxDep = Annotated[Ctx, Depends(get_ctx, scope="function")]
 PublicCtxDep = Annotated[Ctx, Depends(get_public_ctx, scope="function")]
+TileCtxDep = Annotated[Ctx, Depends(get_tile_ctx, scope="function")]

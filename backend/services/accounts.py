@@ -203,6 +203,33 @@ def create_token(ctx: Ctx, name: str, scopes: list[str], expires_in_days: int | 
     return row, token
 
 
+TILE_TOKEN_MAX_DAYS = 90
+
+
+def create_tile_token(ctx: Ctx, name: str, expires_in_days: int = 30) -> tuple[ApiToken, str]:
+    """A tile token (scope "tiles"): reads map tiles and the WMTS document of the sites its user can see,
+    nothing else; always expires (at most TILE_TOKEN_MAX_DAYS, and never after the API token it is made
+    with). It may travel in a URL (`?token=`) for GIS clients that cannot set headers: docs/security.md."""
+    if ctx.principal is None:
+        raise Unauthorized("authentication required")
+    if ctx.principal.via == "token" and not ctx.principal.has_scope("read"):
+        raise Forbidden("a tile token is made from a session or an API token with the 'read' scope")
+    days = int(expires_in_days)
+    if not 1 <= days <= TILE_TOKEN_MAX_DAYS:
+        raise Unprocessable(f"expires_in_days: 1 to {TILE_TOKEN_MAX_DAYS} (a tile token always expires)")
+    expires = utcnow() + timedelta(days=days)
+    if ctx.principal.token_id:
+        parent = ctx.db.get(ApiToken, ctx.principal.token_id)
+        if parent is not None and parent.expires_at is not None:
+            expires = min(expires, parent.expires_at)
+    token = security.new_api_token()
+    row = ApiToken(user_id=ctx.user.id, name=name or "map tiles", prefix=token[:8],
+                   token_hash=security.sha256_hex(token), scopes=["tiles"], expires_at=expires)
+    ctx.db.add(row)
+    ctx.db.flush()
+    return row, token
+
+
 def revoke_token(ctx: Ctx, token_id: str) -> None:
     _require_session(ctx)
     n = ctx.db.execute(update(ApiToken).where(ApiToken.id == token_id, ApiToken.user_id == ctx.user.id,

@@ -122,3 +122,22 @@ def site_ids_with_role(ctx: Ctx, role: str = "viewer"):
     """A sub-select of the ids of the sites on which the caller holds at least `role`."""
     allowed = [r for r, rank in ROLE_RANK.items() if rank >= ROLE_RANK[role]]
     return select(SiteRole.site_id).where(SiteRole.user_id == ctx.principal.user.id, SiteRole.role.in_(allowed))
+
+
+def require_run_for_tiles(ctx: Ctx, run_id: str, paths: tuple[str, ...]) -> tuple[Run, dict[str, RunOutput]]:
+    """require_run_with_outputs for the map tiles and the WMTS document: the viewer role, and a token with
+    the read scope or a tile token (scope "tiles", which reads nothing else)."""
+    if ctx.principal is None:
+        raise Unauthorized("authentication required")
+    p = ctx.principal
+    if not (p.has_scope("read") or p.has_scope("tiles")):
+        raise Forbidden("this API token lacks the 'read' or 'tiles' scope")
+    rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
+                          .options(defer(Run.inputs), defer(Run.settings), defer(Run.changes))
+                          .outerjoin(SiteRole, _caller_role_on(ctx, Run.site_id))
+                          .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
+                          .where(Run.id == run_id)).all() if run_id else []
+    run, have = (rows[0][0], rows[0][1]) if rows else (None, None)
+    if have is None:
+        raise NotFound("run not found")
+    return run, {r[2].path: r[2] for r in rows if r[2] is not None}

@@ -68,7 +68,12 @@ SCOPED = {
     ("GET", "/api/v1/runs/{run_id}/results/point-cloud"): ("run", "viewer", None),
     ("GET", "/api/v1/runs/{run_id}/results/report.pdf"): ("run", "viewer", None),
     ("GET", "/api/v1/runs/{run_id}/results/files/{path:path}"): ("run", "viewer", None),
+    ("GET", "/api/v1/runs/{run_id}/tiles"): ("run", "viewer", None),
+    ("GET", "/api/v1/runs/{run_id}/tiles/{layer}/legend.json"): ("run", "viewer", None),
+    ("GET", "/api/v1/runs/{run_id}/tiles/{layer}/{z}/{x}/{y}.png"): ("run", "viewer", None),
+    ("GET", "/api/v1/runs/{run_id}/wmts/1.0.0/WMTSCapabilities.xml"): ("run", "viewer", None),
     ("GET", "/api/v1/sites/{site_id}/stockpiles"): ("site", "viewer", None),
+    ("GET", "/api/v1/sites/{site_id}/inventory"): ("site", "viewer", None),
     ("POST", "/api/v1/sites/{site_id}/stockpiles"): ("site", "editor", {"name": "intruder", "outline": OUTLINE}),
     ("GET", "/api/v1/stockpiles/{stockpile_id}"): ("stockpile", "viewer", None),
     ("PATCH", "/api/v1/stockpiles/{stockpile_id}"): ("stockpile", "editor", {"name": "hacked"}),
@@ -88,7 +93,7 @@ SCOPED = {
 UNSCOPED = {
     ("POST", "/api/v1/auth/login"), ("POST", "/api/v1/auth/logout"), ("GET", "/api/v1/auth/me"),
     ("POST", "/api/v1/auth/password"), ("GET", "/api/v1/tokens"), ("POST", "/api/v1/tokens"),
-    ("DELETE", "/api/v1/tokens/{token_id}"), ("GET", "/api/v1/users"), ("POST", "/api/v1/users"),
+    ("DELETE", "/api/v1/tokens/{token_id}"), ("POST", "/api/v1/tokens/tile"), ("GET", "/api/v1/users"), ("POST", "/api/v1/users"),
     ("PATCH", "/api/v1/users/{user_id}"),
     ("GET", "/api/v1/sites"), ("POST", "/api/v1/sites"), ("GET", "/api/v1/webhooks"), ("POST", "/api/v1/webhooks"),
     ("GET", "/api/v1/health"), ("GET", "/api/v1/steps"), ("GET", "/api/v1/steps/{name}"),
@@ -134,7 +139,8 @@ def world(platform):
     tok = a.post("/api/v1/tokens", json={"name": "gis", "scopes": ["read"]}).json()
     ids = {"site_id": site["id"], "survey_id": survey["id"], "file_id": files[0]["id"], "upload_id": upload["id"],
            "run_id": run["id"], "stockpile_id": pile["id"], "schedule_id": sched["id"], "webhook_id": hook["id"],
-           "user_id": c_id, "name": "T1", "path": "ppk/trajectory.pos", "token_id": tok["id"]}
+           "user_id": c_id, "name": "T1", "path": "ppk/trajectory.pos", "token_id": tok["id"],
+           "layer": "ortho", "z": 0, "x": 0, "y": 0}
     return {"a": a, "b": b, "c": c, "ids": ids, "read_token": tok["token"], "platform": platform, "b_id": b_id}
 
 

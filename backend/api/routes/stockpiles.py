@@ -7,9 +7,10 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Request, Response
 
 from ...schemas.sites import StockpileIn, StockpileOut, StockpilePatch, VolumePointOut
-from ...services import stockpiles
+from ...services import inventory, stockpiles
 from ..deps import CtxDep
-from ..responses import json_response, model_response
+from ...core.etag import bytes_etag
+from ..responses import bytes_response, json_response, model_response
 
 router = APIRouter(tags=["stockpiles"])
 
@@ -47,3 +48,10 @@ def delete_stockpile(stockpile_id: str, ctx: CtxDep, if_match: Annotated[str | N
             summary="Volume of the stockpile in every run that measured it")
 def volume_history(stockpile_id: str, ctx: CtxDep, request: Request):
     return json_response(request, [VolumePointOut.model_validate(v) for v in stockpiles.volume_history(ctx, stockpile_id)])
+
+
+@router.get("/sites/{site_id}/inventory", summary="All stockpiles at a date: volume, tonnes, change, +- uncertainty",
+            responses={200: {"content": {"application/json": {}, "text/csv": {}, inventory.XLSX: {}}}})
+def site_inventory(site_id: str, ctx: CtxDep, request: Request, date: str | None = None, format: str = "json"):
+    body, media, filename = inventory.inventory(ctx, site_id, date, format)
+    return bytes_response(request, body, media, bytes_etag(body), filename if format != "json" else None)
