@@ -8,15 +8,24 @@ from __future__ import annotations
 from georef_core.steps.contract import Option, Output, Product, StepSpec, all_specs, get_spec, register
 
 REPORT = StepSpec(
-    name="report", title="Accuracy report", version=1,
-    description="PDF: check-point table, PPK quality, lever arm, volumes (the platform's step).",
-    function=None, depends_on=("gnss",), soft_after=("georef", "dense", "volumes"), inputs=("gcp/",),
-    site_data=("crs", "stockpiles", "names"),
-    options=(Option("title", "string", None, "a title for the report's cover", advanced=True),),
+    name="report", title="Accuracy report", version=2,
+    description="PDF survey report: project, flight and equipment, settings, GNSS quality, lever arm and delay, "
+                "check-point residuals with the site-tolerance verdict and the ASPRS (2023) accuracy statement, "
+                "maps, volumes (the platform's step; docs/deliverables.md).",
+    function=None, depends_on=("gnss",), soft_after=("georef", "dense", "volumes", "design"),
+    inputs=("gcp/", "survey.json"), site_data=("crs", "stockpiles", "names"),
+    options=(Option("title", "string", None, "a title for the report's cover", advanced=True),
+             Option("asprs_horizontal_class_cm", "number", None, "the horizontal accuracy class (RMSE_H) the survey "
+                    "is tested against (default: the smallest class it meets)", minimum=0.1, maximum=1000.0,
+                    unit="cm", advanced=True),
+             Option("asprs_vertical_class_cm", "number", None, "the vertical accuracy class (RMSE_V) the survey is "
+                    "tested against (default: the smallest class it meets)", minimum=0.1, maximum=1000.0, unit="cm",
+                    advanced=True)),
     outputs=(Output("report", "report/accuracy_report.pdf", "the accuracy report", "application/pdf"),),
-    products=(Product("report.pdf", "Accuracy report", "PDF: check-point table, PPK quality, lever arm, volumes",
-                      ("report",), (("", "PDF"),)),),
-    summary={"sections": "the report's sections"},
+    products=(Product("report.pdf", "Accuracy report", "PDF: accuracy statement, check points, PPK quality, lever "
+                      "arm, maps, volumes", ("report",), (("", "PDF"),)),),
+    summary={"sections": "the report's sections", "tolerance": "the check points against the site tolerance",
+             "accuracy": "RMSE_H, RMSE_V (cm), classes met, check points, compliance (ASPRS Edition 2)"},
 )
 
 
