@@ -4,9 +4,9 @@ FROM python:3.11-slim-bookworm
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1 \
     GEOREF_DATA_DIR=/data OMP_NUM_THREADS=1 NUMBA_CACHE_DIR=/opt/numba-cache
 
-# open3d needs libusb and libgomp at run time; curl for the health checks
+# open3d needs libusb and libgomp at run time; curl for the health checks; proj-data: the EGM96 geoid grid
 RUN apt-get update -qq \
- && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 curl \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends libusb-1.0-0 libgomp1 curl proj-data \
  && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /app

@@ -17,6 +17,22 @@ def main(argv: list[str] | None = None) -> int:
     for command in (gnss_commands, simulate_command, georef_command, dense_command, volume_command, demo_command,
                     steps_command):
         command.register(sub)
+    from . import design_command
+
+    design_command.register(sub)
+    from . import inventory_command
+
+    inventory_command.register(sub)
+    from . import dtm_command
+
+    dtm_command.register(sub)
+    from . import datum_command
+
+    datum_command.register(sub)
+    from . import contours_command, export_command
+
+    contours_command.register(sub)
+    export_command.register(sub)
     from .. import warmup
 
     w = sub.add_parser("warmup", help="compile every numba kernel into its on-disk cache ahead of use "
