@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import urllib.request
 
 import pytest
 
@@ -241,6 +242,14 @@ def test_site_manager_flow(page, small_site, ui_platform, tmp_path):
     r = page.request.get(csv_link.get_attribute("href"))
     assert r.ok and "dx" in r.text().splitlines()[0]
     shot(page, "downloads")
+    # "Open in QGIS / GIS": the URLs shown with a new tile token work without the session (as in a GIS client)
+    page.get_by_role("button", name="Create a tile token").click()
+    wmts_url = page.get_by_role("textbox", name="WMTS capabilities URL").input_value()
+    ortho_url = page.get_by_role("textbox", name=re.compile("XYZ tiles: ortho")).input_value()
+    with urllib.request.urlopen(wmts_url, timeout=30) as resp:
+        assert b"<Capabilities" in resp.read(2000)
+    with urllib.request.urlopen(ortho_url.format(z=0, x=0, y=0), timeout=60) as resp:
+        assert resp.headers["Content-Type"] == "image/png" and resp.read(8) == b"\x89PNG\r\n\x1a\n"
 
     # --- the overview: the site's card shows the latest survey, its state and the check RMSE of the API
     page.goto("/")

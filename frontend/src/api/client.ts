@@ -112,6 +112,11 @@ export const api = {
   del: async (path: string, opts?: RequestOptions) => {
     await request("DELETE", path, opts);
   },
+  /** GET with the response's ETag (for If-Match on a later PATCH/DELETE). */
+  getWithEtag: async <T>(path: string, opts?: RequestOptions): Promise<{ data: T; etag: string | null }> => {
+    const res = await request("GET", path, opts);
+    return { data: await json<T>(res), etag: res.headers.get("ETag") };
+  },
   /** GET that answers null instead of throwing on 404/409 (a result the run has not produced). */
   maybe: async <T>(path: string, opts?: RequestOptions): Promise<T | null> => {
     try {

@@ -29,6 +29,8 @@ export interface LineChartProps {
   xTime?: boolean;
   height?: number;
   yFormat?: (v: number) => string;
+  /** how values (and their error bars) are written in the summary, the tooltips and the table; default yFormat */
+  valueFormat?: (v: number) => string;
   xFormat?: (v: number) => string;
   yZero?: boolean;
 }
@@ -66,6 +68,7 @@ export function LineChart(p: LineChartProps) {
   const yTicks = niceTicks(y0, y1, 4);
   const yDec = decimalsFor(niceStep(y1 - y0, 4));
   const fy = p.yFormat ?? ((v: number) => v.toFixed(yDec));
+  const fv = p.valueFormat ?? fy;
   const fx = p.xFormat ?? (p.xTime ? timeFmt(x1 - x0) : (v: number) => String(+v.toPrecision(6)));
   const xTicks = p.xTime
     ? Array.from({ length: 5 }, (_, i) => x0 + ((x1 - x0) * i) / 4)
@@ -73,7 +76,7 @@ export function LineChart(p: LineChartProps) {
   const summary = p.series
     .map((s) => {
       const ys = s.points.filter((q) => q.y !== null).map((q) => q.y as number);
-      return ys.length ? `${s.name}: ${ys.length} values from ${fy(Math.min(...ys))} to ${fy(Math.max(...ys))} ${p.yLabel}` : `${s.name}: no values`;
+      return ys.length ? `${s.name}: ${ys.length} values from ${fv(Math.min(...ys))} to ${fv(Math.max(...ys))} ${p.yLabel}` : `${s.name}: no values`;
     })
     .join("; ");
   return (
@@ -100,7 +103,7 @@ export function LineChart(p: LineChartProps) {
                   <tr key={`${s.name}${i}`}>
                     <td>{s.name}</td>
                     <td>{q.label ?? fx(q.x)}</td>
-                    <td class="num">{q.y === null ? "–" : fy(q.y)}{q.err ? ` ± ${fy(q.err)}` : ""}</td>
+                    <td class="num">{q.y === null ? "–" : fv(q.y)}{q.err ? ` ± ${fv(q.err)}` : ""}</td>
                   </tr>
                 )),
               )}
@@ -146,7 +149,7 @@ export function LineChart(p: LineChartProps) {
                 {s.markers || pts.length <= 40
                   ? pts.map((q, i) => (
                     <circle key={`m${i}`} cx={sx(q.x)} cy={sy(q.y as number)} r={3.5} fill={s.colour}>
-                      <title>{`${q.label ?? fx(q.x)}: ${fy(q.y as number)} ${p.yLabel}${q.err ? ` ± ${fy(q.err)}` : ""}`}</title>
+                      <title>{`${q.label ?? fx(q.x)}: ${fv(q.y as number)} ${p.yLabel}${q.err ? ` ± ${fv(q.err)}` : ""}`}</title>
                     </circle>
                   ))
                   : null}

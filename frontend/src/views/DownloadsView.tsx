@@ -7,6 +7,7 @@ import { ErrorBox, Loading } from "../components/ui";
 import { useLoad } from "../hooks";
 import { formatBytes } from "../lib/format";
 import { loadSteps, productsOf, type StepProduct } from "../lib/steps";
+import { GisPanel } from "./GisPanel";
 import type { SurveyContext } from "./surveyContext";
 
 export function DownloadsView({ run }: { ctx: SurveyContext; run: Run }) {
@@ -37,6 +38,7 @@ export function DownloadsView({ run }: { ctx: SurveyContext; run: Run }) {
           );
         })}
       </ul>
+      <GisPanel run={run} />
       <details>
         <summary>All {files.data.length} output files</summary>
         <div class="table-wrap">

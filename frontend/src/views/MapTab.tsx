@@ -4,6 +4,7 @@ import { useEffect, useMemo, useState } from "preact/hooks";
 import { api, apiUrl, mapLimit } from "../api/client";
 import type { ApiPoint, Page, Run, Run as RunT, Stockpile, Survey } from "../api/types";
 import { ColourLegend } from "../components/ColourLegend";
+import { DesignLegend } from "../components/DesignLegend";
 import { type MapOutline, MapView, type RasterLayer } from "../components/MapView";
 import { ErrorBox, Note } from "../components/ui";
 import { useLoad } from "../hooks";
@@ -12,6 +13,8 @@ import { type BBox, type Ring, bboxOf, openRing } from "../lib/geom";
 import { flightDate, formatVolume } from "../lib/format";
 import { type Grid, RAMPS, difference, quantiles, renderHeights } from "../lib/raster";
 import { autoRange, gridBBox, heightAt, useRunRaster } from "./rasterLayers";
+import { useDesignLayer, useDesignSummary } from "./designLayer";
+import { designClassOf } from "../lib/designClasses";
 import type { SurveyContext } from "./surveyContext";
 
 export interface SiteRun {
@@ -47,6 +50,9 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const [showPiles, setShowPiles] = useState(true);
   const [compareId, setCompareId] = useState("");
   const [dsmOpacity, setDsmOpacity] = useState(1);
+  const designDone = useDesignSummary(run);
+  const [showDesign, setShowDesign] = useState(false);
+  const design = useDesignLayer(designDone ? run.id : null, showDesign);
 
   const dsmRange0 = useState<[number, number] | null>(null);
   const ortho = useRunRaster(run.id, "ortho", showOrtho);
@@ -76,6 +82,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   if (showOrtho) for (const l of [ortho.overview, ortho.detail]) if (l) rasters.push(l);
   if (showDsm) for (const l of [dsm.overview, dsm.detail]) if (l) rasters.push({ ...l, opacity: dsmOpacity });
   if (change.layer) rasters.push(change.layer);
+  if (showDesign && design.layer) rasters.push(design.layer);
 
   const readout = (x: number, y: number) => {
     const parts: string[] = [];
@@ -83,6 +90,11 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
     if (h !== null) parts.push(`h ${h.toFixed(2)} m`);
     const d = change.grid ? heightAt([change.grid], x, y) : null;
     if (d !== null) parts.push(`Δh ${d >= 0 ? "+" : ""}${d.toFixed(2)} m`);
+    if (showDesign && design.classes) {
+      const cls = designClassOf(heightAt([design.classes], x, y) ?? NaN);
+      const dd = design.difference ? heightAt([design.difference], x, y) : null;
+      if (cls) parts.push(`to design ${dd !== null ? `${dd >= 0 ? "+" : ""}${dd.toFixed(2)} m ` : ""}(${cls.key.replace("_", " ")})`);
+    }
     return parts.join("  ") || null;
   };
 
@@ -113,13 +125,15 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
             {others.map((o) => <option key={o.run.id} value={o.run.id}>{o.survey.name} (flown {flightDate(o.survey).text})</option>)}
           </select>
         </label>
+        {designDone ? <label><input type="checkbox" checked={showDesign} onChange={() => setShowDesign(!showDesign)} /> Cut/fill to design</label> : null}
         <label><input type="checkbox" checked={showPoints} onChange={() => setShowPoints(!showPoints)} /> Ground points</label>
         <label><input type="checkbox" checked={showPiles} onChange={() => setShowPiles(!showPiles)} /> Stockpiles</label>
       </div>
       <ErrorBox error={showOrtho ? ortho.error : null} title="Orthophoto" />
       <ErrorBox error={needDsm ? dsm.error : null} title="Surface model" />
       <ErrorBox error={change.error} title="Change map" />
-      {(ortho.loading || dsm.loading || change.loading) ? <p class="small muted" aria-live="polite">Loading rasters…</p> : null}
+      <ErrorBox error={showDesign ? design.error : null} title="Cut/fill to design" />
+      {(ortho.loading || dsm.loading || change.loading || design.loading) ? <p class="small muted" aria-live="polite">Loading rasters…</p> : null}
       <MapView
         label={`Map of ${ctx.survey.name}`}
         extent={extent}
@@ -133,6 +147,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
           <>
             {showDsm && range ? <ColourLegend ramp={ramp} min={range[0]} max={range[1]} unit="m" label="Height (ellipsoidal)" /> : null}
             {change.range ? <ColourLegend ramp="diverging" min={-change.range} max={change.range} unit="m" label="Height change (blue lower, red higher)" /> : null}
+            {showDesign && designDone ? <DesignLegend summary={designDone} /> : null}
             {change.stats ? <p class="small">Against {others.find((o) => o.run.id === compareId)?.survey.name}: {formatVolume(change.stats.gained)} gained, {formatVolume(change.stats.lost)} lost over {Math.round(change.stats.area).toLocaleString("en-GB")} m² compared (at the overview resolution).</p> : null}
           </>
         }

@@ -10,6 +10,8 @@ import { useLoad } from "../hooks";
 import { flightDate, formatVolume, formatVolumePm } from "../lib/format";
 import { formatLength } from "../lib/residuals";
 import { href, navigate } from "../router";
+import { DesignPanel } from "./DesignPanel";
+import { InventoryPanel } from "./InventoryPanel";
 
 const PALETTE = ["#1f6feb", "#d9480f", "#2b8a3e", "#ae3ec9", "#e67700", "#0b7285", "#c2255c", "#5c940d"];
 
@@ -133,6 +135,12 @@ export function SiteView({ siteId, me }: { siteId: string; me: Me }) {
           ) : null}
         </div>
       </div>
+
+      <h2>Stockpile inventory</h2>
+      <InventoryPanel siteId={siteId} piles={piles.data} />
+
+      <h2>Design progress</h2>
+      <DesignPanel siteId={siteId} canEdit={canEdit} />
     </section>
   );
 }
