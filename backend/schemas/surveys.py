@@ -82,8 +82,9 @@ class CheckOut(BaseModel):
                                                  'file needed"')
 
 
-UploadKind = Literal["rover", "base", "nav", "images", "image", "events", "points", "gcp_list", "survey_metadata",
-                     "archive", "flight"]
+# file_kinds.HINTS (GET /file-kinds), and the underscore spellings of earlier versions (HINT_ALIASES)
+UploadKind = Literal["rover", "base", "nav", "images", "image", "events", "points", "gcp-list", "survey-metadata",
+                     "archive", "flight", "gcp_list", "survey_metadata"]
 
 
 class UploadIn(BaseModel):

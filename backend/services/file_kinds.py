@@ -43,16 +43,26 @@ HINTS = {
     "image": ("image",),
     "events": ("events",),
     "points": ("points",),
-    "gcp_list": ("gcp-list",),
-    "survey_metadata": ("survey-metadata",),
+    "gcp-list": ("gcp-list",),
+    "survey-metadata": ("survey-metadata",),
     "archive": ("archive",),
 }
+# the spellings of earlier API versions, still accepted from clients
+HINT_ALIASES = {"gcp_list": "gcp-list", "survey_metadata": "survey-metadata"}
 KIND_WORDS = {
     "rinex-obs": "a RINEX observation file", "rinex-nav": "a RINEX navigation file", "ubx": "a u-blox UBX log",
     "rtcm3": "an RTCM 3 log", "dji-mrk": "a DJI Timestamp.MRK (camera exposures)",
     "image": "an image (JPEG/TIFF)", "events": "a camera-event CSV", "points": "a control/check points CSV",
     "gcp-list": "an ODM gcp_list.txt", "survey-metadata": "a survey.json", "archive": "a zip archive",
 }
+
+
+def served_kinds() -> dict:
+    """The file kinds and upload hints as GET /file-kinds serves them: the one list of names the server and
+    the browser's pre-check use (frontend/src/lib/sniff.ts; tests/frontend/test_file_kind_names.py)."""
+    return {"kinds": [{"name": k, "description": KIND_WORDS[k]} for k in KINDS],
+            "hints": {h: list(v) for h, v in HINTS.items()}, "hint_aliases": dict(HINT_ALIASES),
+            "observation_kinds": list(OBSERVATION_KINDS), "flight_kinds": list(FLIGHT_KINDS)}
 
 
 class UnrecognisedFile(Exception):

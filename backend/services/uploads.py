@@ -91,6 +91,7 @@ def create_upload(ctx: Ctx, survey_id: str, filename: str, size: int, sha256: st
     sha256 = sha256.lower()
     if not _SHA256.match(sha256):
         raise Unprocessable("sha256: 64 hexadecimal characters expected")
+    kind = file_kinds.HINT_ALIASES.get(kind, kind)
     if kind is not None and kind not in file_kinds.HINTS:
         raise Unprocessable(f"kind: one of {', '.join(file_kinds.HINTS)}")
     if role is not None and role not in ("rover", "base"):

@@ -83,7 +83,7 @@ describe("file recognition by content", () => {
     expect(p.points!.points.map((q) => q.role)).toEqual(["control", "control", "control", "check", "check"]);
     expect(p.description).toBe("ground points (3 control, 2 check)");
     const g = await sniff("gcp_list.txt");
-    expect(g.kind).toBe("gcp_list");
+    expect(g.kind).toBe("gcp-list");
     expect(g.gcpList!.crs).toBe("EPSG:32653");
     expect(g.gcpList!.measurements).toBeGreaterThan(10);
     const e = await sniff("events.csv", "photos.csv");
@@ -140,10 +140,10 @@ describe("survey metadata", () => {
     const enc = new TextEncoder();
     const j = enc.encode('{"project_crs": "EPSG:32653", "takeoff_antenna_ecef_m": [1, 2, 3]}');
     const s = classify("anything.txt", j, j, "none");
-    expect(s.kind).toBe("survey_metadata");
+    expect(s.kind).toBe("survey-metadata");
     expect(s.description).toBe("survey metadata (EPSG:32653)");
-    expect(uploadKindOf(s, null)).toBe("survey_metadata");
+    expect(uploadKindOf(s, null)).toBe("survey-metadata");
     const other = enc.encode('{"hello": 1}');
-    expect(classify("survey.json", other, other, "none").kind).not.toBe("survey_metadata");
+    expect(classify("survey.json", other, other, "none").kind).not.toBe("survey-metadata");
   });
 });

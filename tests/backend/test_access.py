@@ -74,6 +74,12 @@ SCOPED = {
     ("GET", "/api/v1/runs/{run_id}/wmts/1.0.0/WMTSCapabilities.xml"): ("run", "viewer", None),
     ("GET", "/api/v1/sites/{site_id}/stockpiles"): ("site", "viewer", None),
     ("GET", "/api/v1/sites/{site_id}/inventory"): ("site", "viewer", None),
+    ("GET", "/api/v1/sites/{site_id}/design"): ("site", "viewer", None),
+    ("GET", "/api/v1/sites/{site_id}/design/file"): ("site", "viewer", None),
+    ("GET", "/api/v1/sites/{site_id}/design-progress"): ("site", "viewer", None),
+    ("PUT", "/api/v1/sites/{site_id}/design/file"): ("site", "editor", b"<LandXML/>"),
+    ("PATCH", "/api/v1/sites/{site_id}/design"): ("site", "editor", {"tolerance_m": 0.1}),
+    ("DELETE", "/api/v1/sites/{site_id}/design"): ("site", "editor", None),
     ("POST", "/api/v1/sites/{site_id}/stockpiles"): ("site", "editor", {"name": "intruder", "outline": OUTLINE}),
     ("GET", "/api/v1/stockpiles/{stockpile_id}"): ("stockpile", "viewer", None),
     ("PATCH", "/api/v1/stockpiles/{stockpile_id}"): ("stockpile", "editor", {"name": "hacked"}),
@@ -96,7 +102,7 @@ UNSCOPED = {
     ("DELETE", "/api/v1/tokens/{token_id}"), ("POST", "/api/v1/tokens/tile"), ("GET", "/api/v1/users"), ("POST", "/api/v1/users"),
     ("PATCH", "/api/v1/users/{user_id}"),
     ("GET", "/api/v1/sites"), ("POST", "/api/v1/sites"), ("GET", "/api/v1/webhooks"), ("POST", "/api/v1/webhooks"),
-    ("GET", "/api/v1/health"), ("GET", "/api/v1/steps"), ("GET", "/api/v1/steps/{name}"),
+    ("GET", "/api/v1/health"), ("GET", "/api/v1/steps"), ("GET", "/api/v1/steps/{name}"), ("GET", "/api/v1/file-kinds"),
 }
 PUBLIC = {("POST", "/api/v1/auth/login"), ("GET", "/api/v1/health")}
 NOT_FOUND_WORD = {"site": "site", "survey": "survey", "run": "run", "upload": "upload", "stockpile": "stockpile",
@@ -154,6 +160,8 @@ def _call(client, method: str, path: str, body, headers=None):
         kw["json"] = body
     if path.endswith("/events"):
         url += "?poll_s=0.1&max_s=0.3"
+    if method == "PUT" and path.endswith("/design/file"):
+        url += "?filename=design.xml"
     m = getattr(client, method.lower())
     if method in ("GET", "DELETE"):
         kw.pop("json", None)

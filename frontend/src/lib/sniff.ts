@@ -17,9 +17,15 @@ import { type MrkSummary, looksLikeMrk, parseMrk } from "./mrk";
 import { type Rtcm3Summary, looksLikeRtcm3, scanRtcm3 } from "./rtcm3";
 import { type UbxSummary, looksLikeUbx, scanUbx, ubxChecksum } from "./ubx";
 
-export type FileKind =
-  | "rinex-obs" | "rinex-nav" | "rinex-met" | "ubx" | "rtcm3" | "dji-mrk" | "image" | "events" | "points" | "gcp_list"
-  | "archive" | "survey_metadata" | "readme" | "unknown";
+/** The kinds the server recognises by content, with its names (GET /file-kinds: frontend/tests/fixtures/
+ * file_kinds.json, held equal by tests/frontend/test_file_kind_names.py and tests/fileKinds.test.ts). */
+export const SERVER_KINDS = [
+  "rinex-obs", "rinex-nav", "ubx", "rtcm3", "dji-mrk", "image", "events", "points", "gcp-list", "survey-metadata",
+  "archive",
+] as const;
+/** What only this pre-check names: files the server does not take (met files, notes) or does not recognise. */
+export const LOCAL_ONLY_KINDS = ["rinex-met", "readme", "unknown"] as const;
+export type FileKind = (typeof SERVER_KINDS)[number] | (typeof LOCAL_ONLY_KINDS)[number];
 
 /** Kinds of GNSS observation files (a receiver's log: they have a role, rover or base). */
 export const OBSERVATION_KINDS: FileKind[] = ["rinex-obs", "ubx", "rtcm3"];
@@ -27,8 +33,11 @@ export const isObservation = (k: FileKind): boolean => OBSERVATION_KINDS.include
 /** What a DJI flight folder holds that is uploaded with it (kind=flight): photos, the MRK, raw logs, nav. */
 export const FLIGHT_KINDS: FileKind[] = ["image", "dji-mrk", "rtcm3", "ubx", "rinex-obs", "rinex-nav"];
 
-/** The `kind` of POST /surveys/{id}/uploads. */
-export type UploadKind = "rover" | "base" | "nav" | "images" | "events" | "points" | "gcp_list" | "archive" | "survey_metadata" | "flight";
+/** The `kind` of POST /surveys/{id}/uploads (the server's upload hints, GET /file-kinds). */
+export const UPLOAD_KINDS = [
+  "rover", "base", "nav", "images", "events", "points", "gcp-list", "archive", "survey-metadata", "flight",
+] as const;
+export type UploadKind = (typeof UPLOAD_KINDS)[number];
 
 export type ObsRole = "rover" | "base";
 
@@ -164,11 +173,11 @@ export function classify(path: string, _raw: Uint8Array, data: Uint8Array, compr
     };
   }
   const meta = surveyMetadata(utext);
-  if (meta) return { ...base, kind: "survey_metadata", description: `survey metadata${meta.crs ? ` (${meta.crs})` : ""}` };
+  if (meta) return { ...base, kind: "survey-metadata", description: `survey metadata${meta.crs ? ` (${meta.crs})` : ""}` };
   // A table cut at SNIFF_BYTES loses its last row: drop the partial line unless the file was read whole.
   if (looksLikeGcpList(utext)) {
     const gcpList = parseGcpList(utext);
-    return { ...base, kind: "gcp_list", gcpList, description: `ODM gcp_list (${gcpList.crs}, ${gcpList.measurements} image measurements)` };
+    return { ...base, kind: "gcp-list", gcpList, description: `ODM gcp_list (${gcpList.crs}, ${gcpList.measurements} image measurements)` };
   }
   if (looksLikeEventsCsv(utext)) {
     const events = parseEventsCsv(utext);
@@ -245,12 +254,12 @@ export function uploadKindOf(s: Sniffed, role: ObsRole | null): UploadKind | nul
       return "events";
     case "points":
       return "points";
-    case "gcp_list":
-      return "gcp_list";
+    case "gcp-list":
+      return "gcp-list";
     case "archive":
       return "archive";
-    case "survey_metadata":
-      return "survey_metadata";
+    case "survey-metadata":
+      return "survey-metadata";
     default:
       return null;
   }
@@ -262,7 +271,7 @@ export async function sniffFile(file: Blob, path: string, bytes = SNIFF_BYTES): 
   const { compression, data } = await inflateHead(raw, bytes);
   const s = classify(path, raw, data, compression);
   // Tables are small: when the head held the whole file they are complete; else re-read them whole.
-  if ((s.kind === "points" || s.kind === "events" || s.kind === "gcp_list" || s.kind === "dji-mrk") && file.size > bytes && file.size < 32 * 1024 * 1024) {
+  if ((s.kind === "points" || s.kind === "events" || s.kind === "gcp-list" || s.kind === "dji-mrk") && file.size > bytes && file.size < 32 * 1024 * 1024) {
     const all = new Uint8Array(await file.slice(0, file.size).arrayBuffer());
     const whole = compression === "none" ? all : (await inflateHead(all, 64 * 1024 * 1024)).data;
     return classify(path, all, whole, compression);
