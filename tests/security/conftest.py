@@ -59,7 +59,9 @@ def pdf_text(pdf: bytes) -> str:
     """The text a PDF written by ReportLab draws (its content streams inflated, the strings of the text
     operators joined per text object): enough to assert what a report shows."""
     out = []
-    for m in re.finditer(rb"<<(.*?)>>\s*stream\r?\n(.*?)endstream", pdf, re.S):
+    # each stream object's own dictionary ("N 0 obj << ... >> stream"): a search from any "<<" could start in
+    # an earlier object (a font dictionary) and swallow the stream's /Filter
+    for m in re.finditer(rb"\d+ \d+ obj\s*<<((?:(?!endobj).)*?)>>\s*stream\r?\n(.*?)endstream", pdf, re.S):
         dic, data = m.group(1), m.group(2).strip()
         try:
             if b"ASCII85Decode" in dic:

@@ -113,7 +113,13 @@ def test_nodata_inside_polygon(tmp_path):
     assert any("filled by interpolation" in w for w in r.warnings)
     # the hole sits on the cone's straight flank: harmonic filling is close (curvature is small there)
     assert r.net_m3 == pytest.approx(cone_volume(6.0, 3.0), rel=2e-3)
-    assert r.uncertainty["components_m3"]["nodata_fill_m3"] == pytest.approx(r.filled_nodata_m2 * 0.03, rel=1e-6)
+    # the filled hole is interpolated: by default outside the stated uncertainty, with its own bound;
+    # accepted, area x sigma_z is in it
+    assert r.uncertainty["components_m3"]["nodata_fill_m3"] == 0.0 and r.interpolated["bound_m3"] > 0
+    from georef_core.volumes.volume import VolumeOptions
+
+    ra = compute_volume(small, poly, "plane", noise=MODEL, options=VolumeOptions(accept_interpolated=True))
+    assert ra.uncertainty["components_m3"]["nodata_fill_m3"] == pytest.approx(ra.filled_nodata_m2 * 0.03, rel=1e-6)
     big = _with_hole(tmp_path / "big.tif", 2.5)
     with pytest.raises(InputFileError, match=r"big.tif: .* has no DSM data; at most 5 % is filled"):
         compute_volume(big, poly, "plane", noise=MODEL)
@@ -133,7 +139,9 @@ def test_every_error_is_a_georef_error(scene, tmp_path):
 
 def test_dense_interpolated_cells_are_reported(tmp_path):
     """dsm_filled_mask.tif (the dense step's: 1 = interpolated) next to the DSM: the interpolated area inside
-    the polygon is reported, warned about above 1 %, and counted in the uncertainty."""
+    the polygon is reported and warned about; by default it is outside the stated uncertainty, with its own
+    bound (area x the height range around it) and its share of the net; accepted, it is counted as measured
+    (area x sigma_z in the uncertainty)."""
     import rasterio
 
     dsm = write_dsm(tmp_path / "dsm.tif", lambda E, N: 50 + cone_height(CX, CY, 6.0, 3.0)(E, N), (24, 24), 0.1)
@@ -141,15 +149,36 @@ def test_dense_interpolated_cells_are_reported(tmp_path):
     with rasterio.open(dsm) as src:
         prof = src.profile | {"dtype": "uint8", "nodata": 255}
         mask = np.zeros((src.height, src.width), np.uint8)
-        r, c = src.index(CX, CY)
-    mask[r - 10:r + 10, c - 15:c + 15] = 1  # 20 x 30 cells = 6 m^2, well inside the polygon
+        r0, c = src.index(CX, CY)
+    mask[r0 - 10:r0 + 10, c - 15:c + 15] = 1  # 20 x 30 cells = 6 m^2, well inside the polygon
     mask[:5, :5] = 1  # outside the polygon: not counted
     with rasterio.open(tmp_path / "dsm_filled_mask.tif", "w", **prof) as dst:
         dst.write(mask, 1)
     r = compute_volume(dsm, poly, "plane", noise=MODEL)
     assert r.dsm_interpolated_m2 == pytest.approx(6.0, rel=1e-9)
     assert any("interpolated by the dense step" in w for w in r.warnings)
-    assert r.uncertainty["components_m3"]["nodata_fill_m3"] == pytest.approx(6.0 * 0.03, rel=1e-3)
+    it = r.interpolated
+    assert it["area_m2"] == pytest.approx(6.0, rel=1e-9) and not it["accepted"]
+    assert it["fraction"] == pytest.approx(6.0 / poly.area_m2, abs=1e-4)
+    # the net on those cells: the cone above the plane base over the 2 x 3 m box at the apex
+    with rasterio.open(dsm) as src:
+        z = src.read(1)
+    assert it["net_m3"] > 0 and it["net_m3"] < r.net_m3
+    # bound: the box's area x the height range of the measured cells around it (the cone's flanks)
+    rim = np.concatenate([z[r0 - 11, c - 16:c + 16], z[r0 + 10, c - 16:c + 16], z[r0 - 11:r0 + 11, c - 16],
+                          z[r0 - 11:r0 + 11, c + 15]])
+    assert it["bound_m3"] == pytest.approx(6.0 * (rim.max() - rim.min()), rel=0.05)
+    assert r.uncertainty["components_m3"]["nodata_fill_m3"] == 0.0
+    assert r.uncertainty["ci95_with_interpolated_bound_m3"] == pytest.approx(r.uncertainty["ci95_m3"] + it["bound_m3"],
+                                                                           abs=2e-3)
+    assert any("not in the stated uncertainty" in w for w in r.warnings)
+    from georef_core.volumes.volume import VolumeOptions
+
+    ra = compute_volume(dsm, poly, "plane", noise=MODEL, options=VolumeOptions(accept_interpolated=True))
+    assert ra.interpolated["accepted"] and ra.net_m3 == pytest.approx(r.net_m3, rel=1e-12)
+    assert ra.uncertainty["components_m3"]["nodata_fill_m3"] == pytest.approx(6.0 * 0.03, rel=1e-3)
+    assert ra.uncertainty["sigma_m3"] > r.uncertainty["sigma_m3"]
+    assert "ci95_with_interpolated_bound_m3" not in ra.uncertainty
 
 
 def test_surface_base_with_a_small_hole(tmp_path):
