@@ -31,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--ortho-jpeg", action="store_true", help="JPEG-compressed orthophoto (RGB + mask, ~6x smaller) "
                                                             "instead of lossless RGBA")
     p.add_argument("--keep-depth-maps", action="store_true", help="keep OUT_DIR/dense/depthmaps/*.npy")
+    p.add_argument("--tiles", type=int, default=0, metavar="N",
+                   help="spatial tiles run one after the other, memory of one tile (default 0: automatic, one run up "
+                        "to 150 images; 1: one run); docs/dense.md \"Large surveys\"")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=cmd_dense)
@@ -56,22 +59,35 @@ def _progress(enabled: bool):
     return report, close
 
 
+def _run(out_dir, o, report) -> dict:
+    """One run, or the tiles' plan, parts and merge in this process (as the step's own function does)."""
+    from ..steps import dense_tiles
+    from ..steps.contract import Workspace, get_spec, run_split
+    from ..steps.dense import _options_dict, run_dense
+
+    ws = Workspace(out_dir, out_dir)
+    if dense_tiles.tile_count(o.tiles, dense_tiles.count_images(ws, o)) <= 1:
+        return run_dense(out_dir, o, progress=report)
+    return run_split(get_spec("dense"), ws, _options_dict(o), report, {})
+
+
 def cmd_dense(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from ..steps.dense import DenseOptions, run_dense
+    from ..steps.dense import DenseOptions
 
     o = DenseOptions(oriented_path=args.oriented, resolution_m=args.resolution,
                      ortho_resolution_m=args.ortho_resolution, max_image_size=args.max_image_size,
                      workers=args.workers, voxel_m=args.voxel, ortho=not args.no_ortho,
-                     ortho_compress="JPEG" if args.ortho_jpeg else "DEFLATE", keep_depth_maps=args.keep_depth_maps)
+                     ortho_compress="JPEG" if args.ortho_jpeg else "DEFLATE", keep_depth_maps=args.keep_depth_maps,
+                     tiles=max(0, args.tiles))
     if args.sources is not None:
         o.pairs = replace(o.pairs, n_sources=args.sources)
     if args.min_views is not None:
         o.fusion = replace(o.fusion, min_views=args.min_views)
     report, close = _progress(not args.quiet and not args.json)
     try:
-        s = run_dense(args.out_dir, o, progress=report)
+        s = _run(args.out_dir, o, report)
     finally:
         close()
     if args.json:

@@ -69,6 +69,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flights", type=int, default=1, metavar="N",
                    help="with --aircraft dji-rtk: split the survey into N flights (battery swaps), each its own "
                         "folder, and the base file in two (default 1)")
+    p.add_argument("--exposure-spread", type=float, metavar="FRACTION",
+                   help="per-image exposure gain drawn uniformly in 1 +- FRACTION (seeded; e.g. 0.15), on top of "
+                        "the 3 %% jitter; truth in truth/radiometry.json (default 0: off)")
+    p.add_argument("--vignetting", type=float, metavar="FRACTION",
+                   help="an extra cos^4-like radial falloff this much darker at the image corners (e.g. 0.3; "
+                        "default 0: only the mild 12 %% quadratic one)")
+    p.add_argument("--machines", type=int, metavar="N",
+                   help="park N machines (trucks, excavators, boxes: 2.5-4 m tall, 3-10 m footprints) on open ground; "
+                        "truth/machines.geojson and truth/dtm.tif (the bare earth) are written (default 0)")
     p.add_argument("--workers", type=int, help="images rendered concurrently (default 2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -184,6 +193,10 @@ def options_from_args(args):
         o.flight = replace(o.flight, **fl)
     if args.size is not None:
         o.site = replace(o.site, size_m=(float(args.size[0]), float(args.size[1])))
+    if args.machines is not None:
+        if args.machines < 0:
+            raise GeorefError(f"--machines {args.machines}: at least 0")
+        o.site = replace(o.site, machines=int(args.machines))
     if args.crs is not None:
         from pyproj import CRS
         from pyproj.exceptions import CRSError
@@ -210,6 +223,17 @@ def options_from_args(args):
         if args.second_camera_every < 2:
             raise GeorefError(f"--second-camera-every {args.second_camera_every}: at least 2")
         o.second_camera_every = int(args.second_camera_every)
+    radiometry = {}
+    if args.exposure_spread is not None:
+        if not 0.0 <= args.exposure_spread < 0.9:
+            raise GeorefError(f"--exposure-spread {args.exposure_spread:g}: expected 0 to 0.9")
+        radiometry["exposure_spread"] = float(args.exposure_spread)
+    if args.vignetting is not None:
+        if not 0.0 <= args.vignetting < 0.9:
+            raise GeorefError(f"--vignetting {args.vignetting:g}: expected 0 to 0.9")
+        radiometry["vignetting_cos4"] = float(args.vignetting)
+    if radiometry:
+        o.render = replace(o.render, **radiometry)
     if args.workers is not None:
         o.workers = args.workers
     if args.no_images:

@@ -10,6 +10,15 @@ back-projected along their own rays), which averages the noise of the independen
 confirming neighbour pixels are then marked as used, so that the same surface element is not output
 again when their image is the reference: the cloud has about one point per depth-map pixel of surface,
 not one per view.
+
+Edges and occlusions (a second sweep, ``fuse_view(..., edge=True)``, over the pixels the first left
+unused): at the border of the block and beside tall objects a surface element is seen by only two
+views. Such a pixel is kept when one neighbour agrees, no neighbour *contradicts* it (a neighbour whose
+depth at the projection is larger than the point's, beyond the threshold, looks through the place where
+the point would be: free-space violation; a smaller depth there is an occluder and no contradiction),
+and the agreeing neighbour's baseline is at least ``edge_min_b_over_d`` of the depth (a good
+intersection angle). The first sweep runs over every image before the second, so a surface element that
+three views agree on is always output from the first.
 """
 
 from __future__ import annotations
@@ -27,6 +36,8 @@ class FusionOptions:
     max_relative_depth_diff: float = 0.005  # |z_neighbour - z_point| / z_point
     max_neighbours: int = 12
     min_neighbour_overlap: float = 0.1
+    # second sweep (edges, occlusions): 2 agreeing views, no contradicting one, baseline >= this x depth (0: off)
+    edge_min_b_over_d: float = 0.1
 
 
 @dataclass
@@ -83,9 +94,10 @@ def sample_bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray
 
 
 def fuse_view(i: int, grids: list[CameraView], depth_of, used: list[np.ndarray], neighbours: list[int],
-              colours: np.ndarray, opts: FusionOptions) -> FusedPoints:
+              colours: np.ndarray, opts: FusionOptions, edge: bool = False) -> FusedPoints:
     """Fuse the not-yet-used pixels of view ``i``; marks the confirming pixels of the neighbours as used.
-    ``depth_of(k)`` returns view k's depth map; ``colours`` is view i's RGB image on its grid."""
+    ``depth_of(k)`` returns view k's depth map; ``colours`` is view i's RGB image on its grid. ``edge``:
+    the second sweep's rule (two agreeing views, none contradicting, a good baseline; module docstring)."""
     g = grids[i]
     D = np.asarray(depth_of(i))
     sel = np.isfinite(D) & ~used[i]
@@ -95,6 +107,8 @@ def fuse_view(i: int, grids: list[CameraView], depth_of, used: list[np.ndarray],
     total = np.zeros_like(X)  # sums of the confirming points' offsets from the reference's point
     total_sq = np.zeros(len(X))
     count = np.ones(len(X), np.int32)
+    conflict = np.zeros(len(X), bool)
+    best_bd = np.zeros(len(X))  # largest baseline / depth of an agreeing neighbour
     marks = []
     for m in neighbours:
         gm = grids[m]
@@ -107,14 +121,22 @@ def fuse_view(i: int, grids: list[CameraView], depth_of, used: list[np.ndarray],
         zs = sample_bilinear(np.asarray(depth_of(m)), um, vm).astype(np.float64)
         with np.errstate(invalid="ignore"):
             ok = np.abs(zs - zm[idx]) <= opts.max_relative_depth_diff * zm[idx]
+            if edge:
+                conflict[idx[zs > (1.0 + opts.max_relative_depth_diff) * zm[idx]]] = True
         idx, um, vm, zs = idx[ok], um[ok], vm[ok], zs[ok]
+        if edge:
+            bd = float(np.linalg.norm(gm.centre_enu_m - g.centre_enu_m)) / z[idx]
+            best_bd[idx] = np.maximum(best_bd[idx], bd)
         Xm = gm.centre_enu_m + zs[:, None] * gm.rays_enu(um, vm)
         dX = Xm - X[idx]
         total[idx] += dX
         total_sq[idx] += np.sum(dX * dX, axis=1)
         count[idx] += 1
         marks.append((m, idx, np.rint(um).astype(np.int64), np.rint(vm).astype(np.int64)))
-    keep = count >= opts.min_views
+    if edge:
+        keep = (count >= 2) & ~conflict & (best_bd >= opts.edge_min_b_over_d)
+    else:
+        keep = count >= opts.min_views
     for m, idx, um, vm in marks:
         k = keep[idx]
         hm, wm = used[m].shape

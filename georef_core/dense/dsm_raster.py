@@ -24,6 +24,7 @@ from scipy import ndimage
 
 MASK_MEASURED = 0
 MASK_FILLED = 1
+MASK_COARSE = 2  # measured by the coarse pass only (dense/dsm_support.py)
 MASK_NODATA = 255
 NODATA = -9999.0
 

@@ -17,6 +17,7 @@ where a view was found, 0 elsewhere (no DSM or not seen).
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -28,15 +29,26 @@ from scipy.spatial import cKDTree
 from .camera_views import CameraView
 from ..project_frame import ProjectFrame
 from .dsm_raster import RasterGrid
+from .ortho_radiometry import (camera_index, estimate_radiometry, normalised_radius, observe,
+                               sample_points)
+from .ortho_seams import luminance, multiband_blend, refine_seams
 
 
 @dataclass
 class OrthoOptions:
-    feather_m: float = 1.0
+    feather_m: float = 1.0  # blend=False: width of the feathered band between two views' regions
     tile_cells: int = 512
     max_rank: int = 6  # views tried per cell (nearest centre points first)
     occlusion_tolerance_cells: float = 3.0  # depth tolerance of the z-buffer test, in DSM cells (+ 5 cm)
     image_cache: int = 16
+    # radiometric compensation (ortho_radiometry.py): per-image gains and per-camera vignetting
+    compensate: bool = True
+    compensate_vignetting: bool = True
+    radiometry_samples: int = 20000  # ground points sampled for the estimate
+    # seamlines along low-difference paths + multi-band blending (ortho_seams.py); False: feathering only
+    blend: bool = True
+    seam_band_m: float = 3.0  # seams may move where the second view is less than this farther than the best
+    blend_levels: int = 5  # pyramid levels: coarse brightness mixed over ~2^levels cells
 
 
 class DsmSampler:
@@ -93,9 +105,11 @@ class _ViewData:
     """Per-view image and z-buffer, computed on first use."""
 
     def __init__(self, view: CameraView, dsm_enu: np.ndarray, have: np.ndarray, dsm_grid: RasterGrid,
-                 bbox: tuple[float, float, float, float], depth_med: float):
+                 bbox: tuple[float, float, float, float], depth_med: float, read_image: bool = True):
         self.view = view
-        self.image = view.read_image()
+        self.image = view.read_image() if read_image else None
+        self.index = -1
+        self.radiometry = None
         # z-buffer pixel: 1.5 DSM cells as seen from the view's median depth, so every pixel gets a cell
         cell_px = dsm_grid.resolution_m * view.focal_px / depth_med
         self.zb_px = max(1.0, 1.5 * cell_px)
@@ -123,7 +137,16 @@ class _ViewData:
         return ok & (z <= self.zbuf[vi, ui] + tol)
 
     def sample(self, uv: np.ndarray) -> np.ndarray:
+        """RGB float32 colours at the pixels uv, radiometrically corrected when a model is set."""
+        rgb = self._sample(uv)
+        if self.radiometry is not None and len(uv):
+            rgb *= self.radiometry.correction(self.index, normalised_radius(self.view, uv))
+        return rgb
+
+    def _sample(self, uv: np.ndarray) -> np.ndarray:
         n = len(uv)
+        if n == 0:     # remap refuses an empty map (a view that sees none of a tile's cells)
+            return np.zeros((0, 3), np.float32)
         cols = 4096  # remap wants maps smaller than 32767 in each direction: fold the list into rows
         rows = -(-n // cols)
         m = np.zeros((rows * cols, 2), np.float32)
@@ -162,8 +185,12 @@ def view_footprints(views: list[CameraView], frame: ProjectFrame, h_lo: float, h
 
 def build_orthophoto(views: list[CameraView], dsm: np.ndarray, dsm_grid: RasterGrid, ortho_grid: RasterGrid,
                      frame: ProjectFrame, ground_up_range: tuple[float, float],
-                     depth_med: list[float], options: OrthoOptions | None = None, progress=None) -> np.ndarray:
-    """RGBA (4, rows, cols) uint8 orthophoto on ``ortho_grid``."""
+                     depth_med: list[float], options: OrthoOptions | None = None, progress=None,
+                     labels_out: np.ndarray | None = None, info: dict | None = None) -> np.ndarray:
+    """RGBA (4, rows, cols) uint8 orthophoto on ``ortho_grid``.
+
+    ``labels_out`` (int32, rows x cols), if given, receives the view index each cell was taken from (-1:
+    none); ``info`` (a dict), if given, receives the radiometric model's summary and the stage times."""
     o = options or OrthoOptions()
     report = progress or (lambda *a: None)
     boxes, centres = view_footprints(views, frame, *ground_up_range)
@@ -172,25 +199,57 @@ def build_orthophoto(views: list[CameraView], dsm: np.ndarray, dsm_grid: RasterG
     out = np.zeros((4, ortho_grid.height, ortho_grid.width), np.uint8)
     cache: OrderedDict[int, _ViewData] = OrderedDict()
     sampler = DsmSampler(dsm, dsm_grid, frame)
+    radiometry = None
+    info = info if info is not None else {}
+    t0 = time.perf_counter()
+    if o.compensate and len(views) >= 2:
+        report("ortho_radiometry", 0, 1)
+        pts = sample_points(np.isfinite(dsm), sampler.enu, o.radiometry_samples)
+        zb: dict[int, _ViewData] = {}
+
+        def visible(k, uv, z):
+            if not usable[k]:
+                return np.zeros(len(uv), bool)
+            if k not in zb:
+                zb.clear()
+                zb[k] = _ViewData(views[k], sampler.enu, sampler.have, dsm_grid, tuple(boxes[k]), depth_med[k],
+                                  read_image=False)
+            return zb[k].visible(uv, z, tol)
+
+        obs = observe(views, pts, visible)
+        radiometry = estimate_radiometry(obs, len(views), camera_index(views), vignetting=o.compensate_vignetting)
+        info["radiometry"] = radiometry.summary()
+        info["radiometry_model"] = radiometry
+        report("ortho_radiometry", 1, 1)
+    info["radiometry_s"] = time.perf_counter() - t0
 
     def view_data(k: int) -> _ViewData:
         if k in cache:
             cache.move_to_end(k)
             return cache[k]
         vd = _ViewData(views[k], sampler.enu, sampler.have, dsm_grid, tuple(boxes[k]), depth_med[k])
+        vd.index = int(k)
+        vd.radiometry = radiometry
         cache[k] = vd
         if len(cache) > o.image_cache:
             cache.popitem(last=False)
         return vd
 
-    T = o.tile_cells
+    # blending: tiles twice as large (fewer margins to redo) and each processed with a margin of the
+    # blending's reach, so that seams and pyramids run on across tile borders
+    T = 2 * o.tile_cells if o.blend else o.tile_cells
     tiles = [(r0, c0) for r0 in range(0, ortho_grid.height, T)
              for c0 in (range(0, ortho_grid.width, T) if (r0 // T) % 2 == 0 else
                         reversed(range(0, ortho_grid.width, T)))]  # serpentine: neighbouring tiles share views
+    reach = int(round(1.5 * 2 ** o.blend_levels))
+    margin = reach if o.blend else 0
+    t1 = time.perf_counter()
     for t_idx, (r0, c0) in enumerate(tiles):
         report("orthophoto", t_idx, len(tiles))
         rs, cs = slice(r0, min(r0 + T, ortho_grid.height)), slice(c0, min(c0 + T, ortho_grid.width))
-        E, N = ortho_grid.centres(rs, cs)
+        ers = slice(max(0, r0 - margin), min(r0 + T + margin, ortho_grid.height))
+        ecs = slice(max(0, c0 - margin), min(c0 + T + margin, ortho_grid.width))
+        E, N = ortho_grid.centres(ers, ecs)
         H = sampler.heights(E.ravel(), N.ravel()).reshape(E.shape)
         ok = np.isfinite(H)
         if not ok.any():
@@ -205,39 +264,121 @@ def build_orthophoto(views: list[CameraView], dsm: np.ndarray, dsm_grid: RasterG
         kmax = min(o.max_rank, len(cand))
         dist, order = cKDTree(centres[cand]).query(np.column_stack([e, n]), k=kmax)
         dist, order = dist.reshape(len(e), kmax), order.reshape(len(e), kmax)
-        npts = len(e)
-        found = np.zeros(npts, np.int8)  # views found so far (0..2)
-        best_d = np.full((npts, 2), np.inf)
-        colour = np.zeros((npts, 2, 3), np.float32)
-        for rank in range(kmax):
-            # a cell needs a first view, or a second one while it is within the feather band of the first
-            need = np.nonzero((found == 0) | ((found == 1) & (dist[:, rank] - best_d[:, 0] < o.feather_m)))[0]
-            if len(need) == 0:
-                break
-            kk = cand[order[need, rank]]
-            for k in np.unique(kk):
-                sel = need[kk == k]
-                vd = view_data(int(k))
-                uv, z = vd.view.project_distorted(X[sel])
-                vis = vd.visible(uv, z, tol)
-                sel, uv = sel[vis], uv[vis]
-                if len(sel) == 0:
-                    continue
-                slot = found[sel].astype(np.int64)
-                colour[sel, slot] = vd.sample(uv)
-                best_d[sel, slot] = dist[sel, rank]
-                found[sel] += 1
-        rgb = colour[:, 0]
-        two = found == 2
-        if o.feather_m > 0 and two.any():
-            w1 = np.clip(0.5 + (best_d[two, 1] - best_d[two, 0]) / (2.0 * o.feather_m), 0.5, 1.0)[:, None]
-            rgb[two] = w1 * colour[two, 0] + (1.0 - w1) * colour[two, 1]
-        tile = np.zeros((4,) + E.shape, np.uint8)
-        seen = found > 0
-        rr, cc = np.nonzero(ok)
+        band = o.seam_band_m if o.blend else o.feather_m
+        found, best_d, best_k, colour = _best_two(cand, dist, order, X, view_data, tol, band)
+        if o.blend:
+            rgb, lab = _blend_tile(E.shape, ok, found, best_d, best_k, colour, X, view_data, tol, o, reach)
+        else:
+            rgb = colour[:, 0]
+            two = found == 2
+            if o.feather_m > 0 and two.any():
+                w1 = np.clip(0.5 + (best_d[two, 1] - best_d[two, 0]) / (2.0 * o.feather_m), 0.5, 1.0)[:, None]
+                rgb[two] = w1 * colour[two, 0] + (1.0 - w1) * colour[two, 1]
+            lab = np.full(E.shape, -1, np.int64)
+            lab[ok] = np.where(found > 0, best_k[:, 0], -1)
+            full = np.zeros(E.shape + (3,), np.float32)
+            full[ok] = rgb
+            rgb = full
+        # the tile's core (without its margin)
+        ir = slice(r0 - ers.start, r0 - ers.start + (rs.stop - rs.start))
+        ic = slice(c0 - ecs.start, c0 - ecs.start + (cs.stop - cs.start))
+        seen = lab[ir, ic] >= 0
+        tile = np.zeros((4,) + seen.shape, np.uint8)
+        core = rgb[ir, ic]
         for b in range(3):
-            tile[b, rr[seen], cc[seen]] = np.clip(np.rint(rgb[seen, b]), 0, 255).astype(np.uint8)
-        tile[3, rr[seen], cc[seen]] = 255
+            tile[b][seen] = np.clip(np.rint(core[..., b][seen]), 0, 255).astype(np.uint8)
+        tile[3][seen] = 255
         out[:, rs, cs] = tile
+        if labels_out is not None:
+            labels_out[rs, cs] = lab[ir, ic]
     report("orthophoto", len(tiles), len(tiles))
+    info["mosaic_s"] = time.perf_counter() - t1
     return out
+
+
+def _best_two(cand, dist, order, X, view_data, tol, band):
+    """Per cell, the first two visible views in rank order (the second only while it is less than ``band``
+    farther than the first): found (0..2), their distances, view indices (-1 none) and colours."""
+    npts, kmax = dist.shape
+    found = np.zeros(npts, np.int8)
+    best_d = np.full((npts, 2), np.inf)
+    best_k = np.full((npts, 2), -1, np.int64)
+    colour = np.zeros((npts, 2, 3), np.float32)
+    for rank in range(kmax):
+        need = np.nonzero((found == 0) | ((found == 1) & (dist[:, rank] - best_d[:, 0] < band)))[0]
+        if len(need) == 0:
+            break
+        kk = cand[order[need, rank]]
+        for k in np.unique(kk):
+            sel = need[kk == k]
+            vd = view_data(int(k))
+            uv, z = vd.view.project_distorted(X[sel])
+            vis = vd.visible(uv, z, tol)
+            sel, uv = sel[vis], uv[vis]
+            if len(sel) == 0:
+                continue
+            slot = found[sel].astype(np.int64)
+            colour[sel, slot] = vd.sample(uv)
+            best_d[sel, slot] = dist[sel, rank]
+            best_k[sel, slot] = k
+            found[sel] += 1
+    return found, best_d, best_k, colour
+
+
+def _blend_tile(shape, ok, found, best_d, best_k, colour, X, view_data, tol, o: OrthoOptions, reach: int):
+    """Seamlines + multi-band blending of one (extended) tile: (rgb (h, w, 3) float32, labels (h, w))."""
+    def grid(values, fill):
+        g = np.full(shape + values.shape[1:], fill, dtype=values.dtype)
+        g[ok] = values
+        return g
+
+    valid = grid(found > 0, False)
+    l1, l2 = grid(best_k[:, 0], -1), grid(np.where(found == 2, best_k[:, 1], -1), -1)
+    c1, c2 = grid(colour[:, 0], np.float32(0)), grid(colour[:, 1], np.float32(0))
+    two = found == 2
+    gap = np.full(len(found), np.inf)
+    gap[two] = best_d[two, 1] - best_d[two, 0]
+    margin_d = grid(gap, np.inf)
+    in_band = (l2 >= 0) & (margin_d < o.seam_band_m)
+    labels = refine_seams(l1, l2, margin_d, luminance(c1), luminance(c2), in_band, o.seam_band_m, valid)
+    comp = np.where((labels == l2)[..., None] & (l2 >= 0)[..., None], c2, c1)
+    present = [int(v) for v in np.unique(labels) if v >= 0]
+    if len(present) < 2:
+        return comp, labels
+    # holes (no view) take their nearest seen colour so that the pyramids do not pull black in
+    if not valid.all():
+        idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+        comp = comp[idx[0], idx[1]]
+    cell_of = np.full(shape, -1, np.int64)
+    cell_of[ok] = np.arange(int(ok.sum()))
+    diffs = {}
+    for lab in present:
+        rr_, cc_ = np.nonzero(labels == lab)
+        # the label's region and its ring, cropped to their bounding box
+        wr = slice(max(0, rr_.min() - reach - 1), min(shape[0], rr_.max() + reach + 2))
+        wc = slice(max(0, cc_.min() - reach - 1), min(shape[1], cc_.max() + reach + 2))
+        region = labels[wr, wc] == lab
+        d = cv2.distanceTransform((~region).astype(np.uint8), cv2.DIST_L2, 3)
+        ring = (d > 0) & (d <= reach) & valid[wr, wc]
+        if not ring.any():
+            continue
+        I = np.full(region.shape + (3,), np.nan, np.float32)
+        have1 = ring & (l1[wr, wc] == lab)
+        have2 = ring & (l2[wr, wc] == lab)
+        I[have1] = c1[wr, wc][have1]
+        I[have2] = c2[wr, wc][have2]
+        rest = ring & ~have1 & ~have2
+        if rest.any():
+            rr, cc = np.nonzero(rest)
+            sel = cell_of[wr, wc][rr, cc]
+            vd = view_data(lab)
+            uv, z = vd.view.project_distorted(X[sel])
+            vis = vd.visible(uv, z, tol)
+            I[rr[vis], cc[vis]] = vd.sample(uv[vis])
+        have = np.isfinite(I[..., 0])
+        taper = np.clip((reach - d) / (reach / 3.0), 0.0, 1.0).astype(np.float32)
+        D = np.zeros(shape + (3,), np.float32)
+        D[wr, wc] = np.where(have[..., None], (I - comp[wr, wc]) * taper[..., None], 0.0)
+        diffs[lab] = D
+    rgb = multiband_blend(comp.astype(np.float32), labels, diffs, o.blend_levels)
+    return rgb, labels

@@ -39,6 +39,12 @@ class StereoOptions:
     refine_iterations: int = 1  # 1-D Lucas-Kanade sub-pixel refinement steps (0: SGBM's own)
     refine_window: int = 5
     max_canvas_factor: float = 3.0  # refuse pairs whose rectified canvas exceeds this many reference images
+    # no disparity where the reference's grey levels vary less than this (standard deviation over a
+    # texture_window x texture_window window, 8-bit levels): SGM's smoothness carries disparities across
+    # such areas from their borders, a guess rather than a match; the coarse pass measures them where they
+    # have texture at a coarser scale (0: off)
+    min_texture_std: float = 0.0
+    texture_window: int = 7
 
 
 @dataclass
@@ -199,6 +205,14 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, d: np.ndarray, o: Ster
     return out
 
 
+def local_std(img: np.ndarray, window: int) -> np.ndarray:
+    """Standard deviation of the grey levels over a window x window box around each pixel."""
+    f = img.astype(np.float32)
+    m = cv2.blur(f, (window, window))
+    m2 = cv2.blur(f * f, (window, window))
+    return np.sqrt(np.maximum(m2 - m * m, 0.0))
+
+
 def depth_in_reference(pair: RectifiedPair, canvas_disparity: np.ndarray, grid: CameraView) -> np.ndarray:
     """Depths (camera z of the reference, m) on the reference's pinhole grid ``grid`` (same camera centre and
     orientation as the reference, own K and size); NaN where unknown."""
@@ -240,6 +254,8 @@ def pair_depth_map(ref: CameraView, src: CameraView, ref_gray: np.ndarray, src_g
     left, right = rectify_images(pair, ref, src, ref_gray, src_gray)
     d = sgbm_disparity(left, right, pair, o)
     d = refine_disparity(left, right, d, o)
+    if o.min_texture_std > 0:
+        d[local_std(left, o.texture_window) < o.min_texture_std] = np.nan
     depth = depth_in_reference(pair, d, grid)
     info = {"rectified": True, "canvas": [pair.width, pair.height], "num_disparities": pair.num_disparities,
             "valid_fraction": float(np.mean(np.isfinite(d)))}

@@ -39,6 +39,12 @@ class RenderOptions:
     vignetting: float = 0.12  # relative darkening at the image corners
     gain_jitter: float = 0.03  # RMS of the per-image exposure gain
     noise_dn: float = 1.2  # RMS sensor noise in 8-bit units
+    # stronger radiometry for orthophoto-mosaicking tests (default off: seeded scenes keep their pixels):
+    # a per-image exposure gain drawn uniformly in 1 +- exposure_spread (its own seeded stream, on top of
+    # gain_jitter), and a cos^4-like radial falloff 1 / (1 + k rho^2)^2 this much darker at the corners
+    # (rho = distance to the principal point / half the image diagonal); truth in truth/radiometry.json
+    exposure_spread: float = 0.0
+    vignetting_cos4: float = 0.0
     jpeg_quality: int = 92
     background_rgb: tuple[int, int, int] = (120, 125, 130)  # rays that hit nothing
     threads: int = 0  # Open3D threads (0: all cores)
@@ -135,19 +141,24 @@ class Renderer:
         u, v = np.meshgrid(np.arange(camera.width) - camera.cx, np.arange(camera.height) - camera.cy)
         rr = (u / (0.5 * camera.width)) ** 2 + (v / (0.5 * camera.width)) ** 2
         self.vignette = (1.0 - self.options.vignetting * np.clip(rr / 1.5625, 0, None)).astype(np.float32)
+        if self.options.vignetting_cos4 > 0:
+            rho2 = (u ** 2 + v ** 2) / (0.25 * (camera.width ** 2 + camera.height ** 2))
+            self.vignette *= cos4_falloff(rho2, self.options.vignetting_cos4).astype(np.float32)
         n = camera.width * camera.height * 3
         bank_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 404]))
         self._noise = (bank_rng.standard_normal(n + 65536, dtype=np.float32) * np.float32(self.options.noise_dn))
 
     def render(self, R_cam_to_enu: np.ndarray, centre_enu: np.ndarray, rng: np.random.Generator | None = None,
-               band_rows: int = 160, velocity_enu_m_s=None) -> np.ndarray:
+               band_rows: int = 160, velocity_enu_m_s=None, exposure_gain: float = 1.0,
+               gain_out: list | None = None) -> np.ndarray:
         """uint8 RGB image (height, width, 3) of the site seen from a camera pose (local ENU).
 
         ``velocity_enu_m_s``: the camera's velocity, for a rolling-shutter camera (``camera.readout_s`` > 0):
         each row is seen from where the camera was at that row's exposure (``camera.row_time_s``).
 
         ``rng`` draws the exposure gain jitter and the sensor-noise offset; None: no noise. The image is
-        processed in bands of rows (smaller temporaries: less memory traffic, no page-fault storms)."""
+        processed in bands of rows (smaller temporaries: less memory traffic, no page-fault storms).
+        ``exposure_gain`` multiplies the drawn gain; ``gain_out`` (a list) receives the total gain applied."""
         cam = self.camera
         o = self.options
         W, H = cam.width, cam.height
@@ -159,6 +170,9 @@ class Renderer:
         off = -1  # no sensor noise
         if rng is not None and o.gain_jitter > 0:
             gain = float(1.0 + o.gain_jitter * rng.standard_normal())
+        gain *= float(exposure_gain)
+        if gain_out is not None:
+            gain_out.append(gain)
         if rng is not None and o.noise_dn > 0:
             off = int(rng.integers(0, 65536))
         blur = o.blur_sigma_px > 0
@@ -221,6 +235,22 @@ class Renderer:
         rgb += 0.5
         np.clip(rgb, 0, 255, out=rgb)
         return rgb.astype(np.uint8).reshape(r1 - r0, W, 3)
+
+
+def cos4_falloff(rho2: np.ndarray, corner_loss: float) -> np.ndarray:
+    """Radial falloff ``1 / (1 + k rho^2)^2`` (the cos^4 law of a lens whose corner ray is at atan(sqrt(k))),
+    k chosen so that it is ``1 - corner_loss`` at rho = 1 (the image corners); ``rho2`` = rho^2."""
+    k = 1.0 / math.sqrt(1.0 - float(corner_loss)) - 1.0
+    return 1.0 / (1.0 + k * np.asarray(rho2, dtype=np.float64)) ** 2
+
+
+def exposure_gains(seed: int, indices, spread: float) -> np.ndarray:
+    """The simulator's extra per-image exposure gains, uniform in 1 +- ``spread`` (1 where spread is 0), one
+    seeded stream per image index (independent of the rendering order)."""
+    if spread <= 0:
+        return np.ones(len(indices))
+    return np.array([1.0 + spread * (2.0 * np.random.default_rng(np.random.SeedSequence([int(seed), 606, int(i)])).random()
+                                     - 1.0) for i in indices])
 
 
 # ---- JPEG + EXIF -------------------------------------------------------------------------------------

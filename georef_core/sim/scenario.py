@@ -28,7 +28,7 @@ import numpy as np
 from .camera import CameraModel, CameraOptions
 from .flight import (CameraEvent, FlightOptions, FlightPlan, Trajectory, antenna_to_camera_enu, gps_time_to_utc,
                      simulate_flight)
-from .render import Renderer, RenderOptions, TerrainMesh, exif_bytes, write_jpeg
+from .render import Renderer, RenderOptions, TerrainMesh, exif_bytes, exposure_gains, write_jpeg
 from .site import Site, SiteOptions, build_site
 from .survey_gnss import GnssOptions, SurveyGnssResult, simulate_survey_gnss
 from .texture import TextureOptions, generate_texture, sun_vector_enu
@@ -168,6 +168,22 @@ def _write_readmes(out: Path, site: Site, n_images: int, flight: FlightOptions, 
         f"Lever arm (camera frame, m): {list(flight.lever_arm_cam_m)}; delay: {flight.trigger_delay_s} s.\n")
 
 
+def _radiometry_truth(render: RenderOptions, events, applied_gain: dict, extra_gain: dict) -> dict:
+    """truth/radiometry.json: every image's exposure gain and the cameras' vignetting (the factor an image's
+    pixel carries relative to the scene's radiance = gain x vignetting(rho))."""
+    return {
+        "model": "pixel = gain * V(rho) * radiance (then sensor noise, 8-bit clipping, JPEG); rho = distance to "
+                 "the principal point / half the image diagonal",
+        "vignetting": {"V(rho)": "(1 - a rho^2 r43) / (1 + k rho^2)^2", "a": render.vignetting,
+                       "r43": "(1 + (H/W)^2) / 1.5625 (1 for 4:3 images)",
+                       "k": (1.0 / math.sqrt(1.0 - render.vignetting_cos4) - 1.0) if render.vignetting_cos4 > 0 else 0.0,
+                       "corner_loss_cos4": render.vignetting_cos4},
+        "exposure_spread": render.exposure_spread, "gain_jitter_rms": render.gain_jitter,
+        "gains": {e.name: float(applied_gain.get(e.name, 1.0)) for e in events},
+        "exposure_gains": {e.name: float(extra_gain[e.name]) for e in events},
+    }
+
+
 def _write_survey_json(out: Path, site: Site, traj, gnss: SurveyGnssResult | None) -> None:
     """``survey.json``: what the surveyor knows about the flight besides the files (project CRS, the
     surveyed take-off point for single-frequency known-start PPK, the points' CRS)."""
@@ -225,6 +241,7 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
     bounds = plan.coverage_bounds(margin)
     mesh = texture = None
     image_paths: list[Path] = []
+    radiometry = None
     if o.write_images and events:
         t = time.perf_counter()
         pr.stage("mesh")
@@ -267,10 +284,17 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                 gps = (math.degrees(float(lat)), math.degrees(float(lon)), float(g[2]))
             jobs.append((e, R, c, traj.velocity_enu(te), exif_bytes(camera_of[e.name], gps_time_to_utc(te), gps)))
 
+        extra_gain = dict(zip([e.name for e in events],
+                              exposure_gains(seed, [e.index for e in events], o.render.exposure_spread)))
+        applied_gain: dict[str, float] = {}
+
         def job(item) -> Path:
             e, R, c, vel, exb = item
             rng = np.random.default_rng(np.random.SeedSequence([int(seed), 505, e.index]))
-            img = renderers[id(camera_of[e.name])].render(R, c, rng, velocity_enu_m_s=vel)
+            g: list = []
+            img = renderers[id(camera_of[e.name])].render(R, c, rng, velocity_enu_m_s=vel,
+                                                          exposure_gain=extra_gain[e.name], gain_out=g)
+            applied_gain[e.name] = g[0] if g else float(extra_gain[e.name])
             path = img_dir / e.name
             write_jpeg(path, img, exb, o.render.jpeg_quality)
             return path
@@ -289,6 +313,7 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
                     image_paths.append(p)
                     pr.image_done(i + 1, len(events))
         pr.close()
+        radiometry = _radiometry_truth(o.render, events, applied_gain, extra_gain)
         tick("render", t)
         del mesh, texture, renderer, renderers
 
@@ -301,6 +326,10 @@ def simulate_site(out_dir, seed: int = 0, options: SimulationOptions | None = No
     write_gcp_points(out / "gcp", site, o.gcp_noise_m, seed)
     write_gcp_image_measurements(out / "gcp" / "gcp_list.txt", site, traj, events, camera, o.flight.lever_arm_cam_m,
                                  o.gcp_click_noise_px, seed, flight=o.flight, camera_of=camera_of)
+    if radiometry is not None:
+        from .truth import write_json
+
+        write_json(out / "truth" / "radiometry.json", radiometry)
     if camera2 is not None:
         from .truth import write_json
 

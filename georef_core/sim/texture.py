@@ -54,6 +54,14 @@ class TextureOptions:
     ambient: float = 0.38  # share of diffuse sky light on a flat, unshadowed surface
     n_vehicle_tracks: int = 14
     stone_density_per_m2: float = 0.6
+    # weakly textured patches, none by default (seeded scenes keep their images): ((x, y, radius_m, kind), ...)
+    # in site coordinates; kind "soil": a graded soil pad whose only texture is a soft mottling 1-3 m across
+    # (no grain, stones or tracks: nothing at the scale of a matching window), "water": uniform (a pond's
+    # surface: nothing to match at any scale). Only the texture changes, not the ground's shape.
+    weak_patches: tuple = ()
+
+
+WEAK_PATCH_COLOURS = {"soil": (0.50, 0.41, 0.32), "water": (0.20, 0.24, 0.25)}
 
 
 # ---- noise helpers -------------------------------------------------------------------------------
@@ -324,6 +332,21 @@ def generate_texture(site, bounds: tuple[float, float, float, float], texel_m: f
         pc = base[None, None, :] * (1.0 + 0.07 * n2[win] + 0.05 * n4[win])[..., None]
         col[win] += (pc - col[win]) * m[..., None]
         grain[win] += (GRAIN.get(p.material, 0.25) - grain[win]) * m
+    # machines: painted bodies, mottled so that they can be matched (no rng drawn: sites keep their textures)
+    for mc in getattr(site, "machines", ()):
+        from .machines import PAINTS
+
+        r = mc.bounding_radius + 0.5
+        j0, j1 = int(np.clip((mc.cx - r - xmin) / cs, 0, wc)), int(np.clip((mc.cx + r - xmin) / cs + 1, 0, wc))
+        i0, i1 = int(np.clip((mc.cy - r - ymin) / cs, 0, hc)), int(np.clip((mc.cy + r - ymin) / cs + 1, 0, hc))
+        if j1 <= j0 or i1 <= i0:
+            continue
+        win = (slice(i0, i1), slice(j0, j1))
+        m = _smooth((0.05 - mc.footprint_sdf(X[win], Y[win])) / 0.1).astype(np.float32)
+        paint = np.asarray(PAINTS.get(mc.paint, PAINTS["yellow"]), np.float32)
+        pc = paint[None, None, :] * (1.0 + 0.12 * n4[win] + 0.06 * n2[win])[..., None]
+        col[win] += (pc - col[win]) * m[..., None]
+        grain[win] += (0.15 - grain[win]) * m
     # scattered stones (dark and light), 4-25 cm, on the ground and the piles
     area = (xmax - xmin) * (ymax - ymin)
     ns = int(o.stone_density_per_m2 * area)
@@ -339,6 +362,16 @@ def generate_texture(site, bounds: tuple[float, float, float, float], texel_m: f
     # broad brightness variation and a little hue variation
     col *= (1.0 + 0.06 * n3 + 0.05 * n1)[..., None]
     col[..., 2] *= 1.0 + 0.03 * n2
+    for px, py, pr, kind in o.weak_patches:
+        if kind not in WEAK_PATCH_COLOURS:
+            raise ValueError(f"weak texture patch kind {kind!r}: use one of {', '.join(WEAK_PATCH_COLOURS)}")
+        m = _smooth((pr - np.hypot(X - px, Y - py)) / 0.3).astype(np.float32)
+        flat = np.broadcast_to(np.asarray(WEAK_PATCH_COLOURS[kind], np.float32), col.shape).copy()
+        if kind == "soil":
+            soft = gaussian_filter(n4, 1.0 / cs)
+            flat *= (1.0 + 0.10 * soft / (soft.std() + 1e-6))[..., None]
+        col += (flat - col) * m[..., None]
+        grain *= 1.0 - m
     col *= irr[..., None]
     del X, Y, Z, n1, n2, n3, n4, irr
 

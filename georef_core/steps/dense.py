@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dense.coarse_pass import CoarseOptions
 from ..dense.depth_fusion import FusionOptions
 from ..dense.orthophoto import OrthoOptions
 from ..dense.pair_selection import PairSelectionOptions
@@ -48,13 +49,16 @@ class DenseOptions:
     stereo: StereoOptions = field(default_factory=StereoOptions)
     fusion: FusionOptions = field(default_factory=FusionOptions)
     ortho_options: OrthoOptions = field(default_factory=OrthoOptions)
+    coarse: CoarseOptions = field(default_factory=CoarseOptions)  # coarse pass filling weakly textured areas
+    tiles: int = 0  # spatial tiles (steps/dense_tiles.py): 0 auto (1 up to 250 images, then ~1 per 100), 1 one run
+    tile_margin: float = 0.25  # a tile takes the images whose footprint meets its core grown by this many footprints
 
     @classmethod
     def from_dict(cls, d: dict) -> "DenseOptions":
         """From plain JSON-like values (the worker's job options); nested option groups as dicts. Unknown
         names are refused."""
         nested = {"pairs": PairSelectionOptions, "stereo": StereoOptions, "fusion": FusionOptions,
-                  "ortho_options": OrthoOptions}
+                  "ortho_options": OrthoOptions, "coarse": CoarseOptions}
         kw = {}
         for k, v in (d or {}).items():
             if k not in cls.__dataclass_fields__:
@@ -138,6 +142,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
 
     from ..dense import cog_writer, dsm_raster
     from ..dense.camera_views import views_from_oriented
+    from ..dense.coarse_pass import coarse_points, coarse_views
+    from ..dense.dsm_support import SUPPORT_NODATA, tiered_dsm
     from ..dense.depth_fusion import concatenate, fuse_view, fusion_neighbours
     from ..dense.orthophoto import build_orthophoto
     from ..dense.pair_selection import select_sources
@@ -282,6 +288,13 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
             parts.append(fuse_view(i, grids, depth_of, used, [j for j in neighbours[i] if j in used], colours,
                                    opts.fusion))
             report("fusion", n_done, len(have))
+        if opts.fusion.edge_min_b_over_d > 0:  # second sweep: two-view points at edges and beside occluders
+            for i in have:
+                g = grids[i]
+                mx, my = views[i].undistort_maps(g)
+                colours = cv2.remap(views[i].read_image(), mx, my, cv2.INTER_LINEAR)[:, :, ::-1]
+                parts.append(fuse_view(i, grids, depth_of, used, [j for j in neighbours[i] if j in used], colours,
+                                       opts.fusion, edge=True))
         fused = concatenate(parts)
         del parts
     if len(fused.xyz_enu_m) < 100:
@@ -313,12 +326,31 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         sigma_mean = np.sqrt(fused.spread_m[keep].astype(np.float64) ** 2 / np.maximum(nv - 1.0, 1.0))
         precision_m = float(np.sqrt(np.mean(sigma_mean ** 2))) if len(sigma_mean) else None
 
+    # ---- coarse pass: the same pairs at 1/4 of the size, where weak texture left the fine pass empty -----
+    coarse_pts = coarse_nv = coarse_res = None
+    coarse_info = None
+    views_c = coarse_views(views, opts.coarse)
+    if views_c is not None:
+        with timer.stage("coarse_pass"):
+            cfused, coarse_info = coarse_points(views_c, prior, sources, opts.stereo, opts.fusion, opts.workers, report)
+            if len(cfused.xyz_enu_m):
+                coarse_pts = frame.enu_to_grid(cfused.xyz_enu_m)
+                coarse_nv = cfused.n_views
+                coarse_res = _nice(res * opts.coarse.factor / opts.depth_map_downscale)
+                if opts.outlier_k > 0:
+                    cbad = surface_outliers(coarse_pts[:, 0], coarse_pts[:, 1], coarse_pts[:, 2], coarse_res,
+                                            k=opts.outlier_k, min_offset_m=opts.outlier_min_offset_m)
+                    coarse_pts, coarse_nv = coarse_pts[~cbad], coarse_nv[~cbad]
+                    coarse_info["outliers_removed"] = int(cbad.sum())
+                coarse_info["dsm_cell_m"] = coarse_res
+
     # ---- DSM ---------------------------------------------------------------------------------------
     report("dsm", 0, 1)
     with timer.stage("dsm"):
         dgrid = dsm_raster.grid_covering(pts[:, 0], pts[:, 1], res)
-        dsm, counts = dsm_raster.bin_median(dgrid, pts[:, 0], pts[:, 1], pts[:, 2], opts.min_points_per_cell)
-        dsm_filled, mask = dsm_raster.fill_holes(dsm, opts.max_gap_m / res)
+        tiers = tiered_dsm(dgrid, pts, n_views, opts.fusion.min_views, coarse_pts, coarse_nv, coarse_res,
+                           opts.max_gap_m / res, opts.min_points_per_cell)
+        dsm_filled, mask, counts = tiers.dsm, tiers.mask, tiers.counts
         tags = dict(cog_writer.HEIGHT_TAGS, RESOLUTION_M=f"{res:g}")
         cog_writer.write_cog(dense_dir / "dsm.tif", np.where(np.isfinite(dsm_filled), dsm_filled,
                                                               dsm_raster.NODATA).astype(np.float32),
@@ -326,8 +358,14 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                              descriptions=["ellipsoidal height"], units="metre", tags=tags)
         cog_writer.write_cog(dense_dir / "dsm_filled_mask.tif", mask, dgrid.transform, frame.epsg,
                              nodata=dsm_raster.MASK_NODATA, overview_resampling="NEAREST",
-                             descriptions=["0 measured, 1 filled, 255 no data"],
-                             tags={"VALUES": "0 measured, 1 filled (interpolated), 255 no data"})
+                             descriptions=["0 measured, 2 measured at coarse resolution, 1 filled, 255 no data"],
+                             tags={"VALUES": "0 measured, 2 measured at coarse resolution (coarse pass only), "
+                                             "1 filled (interpolated), 255 no data"})
+        cog_writer.write_cog(dense_dir / "dsm_support.tif", tiers.support, dgrid.transform, frame.epsg,
+                             nodata=SUPPORT_NODATA, overview_resampling="NEAREST",
+                             descriptions=["views agreeing on the cell (0: interpolated, no support)"],
+                             tags={"VALUES": "median number of views that agreed on the cell's points; 0 interpolated "
+                                             "(no measurement); 255 no data"})
     report("dsm", 1, 1)
 
     # ---- orthophoto --------------------------------------------------------------------------------
@@ -337,7 +375,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
             ogrid = dgrid.with_resolution(ortho_res)
             gmin, gmax = np.percentile(xyz_enu[:, 2], [0.5, 99.5]) if len(xyz_enu) else (0.0, 0.0)
             rgba = build_orthophoto(views, dsm_filled, dgrid, ogrid, frame, (float(gmin), float(gmax)),
-                                    [p.depth_med_m for p in prior.views], opts.ortho_options, report)
+                                    [p.depth_med_m for p in prior.views], opts.ortho_options, report,
+                                    info=(ortho_run := {}))
             from ..dense.cog_writer import RGBA
 
             comp = opts.ortho_compress.upper()
@@ -345,7 +384,9 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                                  colorinterp=RGBA, overview_resampling="AVERAGE",
                                  tags={"PRODUCER": "georef dense step", "RESOLUTION_M": f"{ortho_res:g}"})
             ortho_info = {"resolution_m": ortho_res, "width": ogrid.width, "height": ogrid.height,
-                          "coverage_fraction": float(np.mean(rgba[3] > 0))}
+                          "coverage_fraction": float(np.mean(rgba[3] > 0)),
+                          "radiometry": ortho_run.get("radiometry"), "radiometry_s": round(ortho_run["radiometry_s"], 3),
+                          "mosaic_s": round(ortho_run["mosaic_s"], 3)}
 
     # ---- point cloud file ----------------------------------------------------------------------------
     report("point cloud", 0, 1)
@@ -363,6 +404,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     n_img = len(views)
     measured = int(np.count_nonzero(mask == dsm_raster.MASK_MEASURED))
     filled = int(np.count_nonzero(mask == dsm_raster.MASK_FILLED))
+    coarse_cells = int(np.count_nonzero(mask == dsm_raster.MASK_COARSE))
     valid_fracs = [p["valid_fraction"] for p in pair_info if p.get("rectified")]
     check_bias = _check_height_bias(out_dir / "residuals.json")
     summary = {
@@ -383,10 +425,13 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         "points": {"fused": int(n_fused), "outliers_removed": int(np.count_nonzero(bad)), "written": int(len(las_xyz)),
                    "mean_views_per_point": round(float(np.mean(n_views)), 3) if len(n_views) else None},
         "dsm": {"width": dgrid.width, "height": dgrid.height, "measured_cells": measured, "filled_cells": filled,
-                "hole_fraction": round(filled / max(1, measured + filled), 5),
+                "coarse_cells": coarse_cells, "two_view_cells": tiers.stats["two_view_cells"],
+                "hole_fraction": round(filled / max(1, measured + filled + coarse_cells), 5),
+                "coarse_minus_fine_m": tiers.stats.get("coarse_minus_fine_m"),
                 "bounds": [dgrid.west, dgrid.north - dgrid.height * res, dgrid.west + dgrid.width * res, dgrid.north],
                 "mean_points_per_measured_cell": round(float(counts[mask == 0].mean()), 3) if measured else None},
         "ortho": ortho_info,
+        "coarse_pass": coarse_info,
         # read by the volume uncertainty model (docs/volumes.md)
         "dsm_vertical_rmse_m": round(precision_m, 4) if precision_m is not None else None,
         # how far a height edge (a stockpile's toe) spreads in the DSM: half the matching window on the ground
@@ -401,6 +446,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         "workers": opts.workers,
         "outputs": {k: str(dense_dir / f) for k, f in (("points", "points.laz"), ("dsm", "dsm.tif"),
                                                       ("dsm_filled_mask", "dsm_filled_mask.tif"),
+                                                      ("dsm_support", "dsm_support.tif"),
                                                       ("ortho", "ortho.tif"))
                     if k != "ortho" or opts.ortho},
         "options": _options_dict(opts),
@@ -427,5 +473,12 @@ def _options_dict(opts: DenseOptions) -> dict:
 
 
 def step_entry(workspace, options: dict, progress, context: dict) -> dict:
-    """The dense step as the contract runs it (specs.DENSE)."""
-    return run_dense(workspace.out_dir, dict(options or {}) or None, progress)
+    """The dense step as the contract runs it (specs.DENSE): one run, or (``tiles`` > 1, or auto on a large
+    block) the tiles' plan, parts and merge in this process (contract.run_split; steps/dense_tiles.py)."""
+    from . import dense_tiles
+    from .contract import get_spec, run_split
+
+    opts = DenseOptions.from_dict(dict(options or {}))
+    if dense_tiles.tile_count(opts.tiles, dense_tiles.count_images(workspace, opts)) <= 1:
+        return run_dense(workspace.out_dir, dict(options or {}) or None, progress)
+    return run_split(get_spec("dense"), workspace, dict(options or {}), progress, context)

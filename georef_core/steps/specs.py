@@ -3,7 +3,7 @@ its report step (backend/services/steps_catalog.py). Importing this module loads
 
 from __future__ import annotations
 
-from .contract import Option, Output, Product, StepSpec, options_from_dataclass, register
+from .contract import Option, Output, Product, Split, StepSpec, options_from_dataclass, register
 from .georef_options import FACTORY_CALIBRATION_CHOICES, MODES, SFM_MODELS, GeorefOptions
 
 # ---------------------------------------------------------------------------------------------------- gnss
@@ -132,9 +132,12 @@ GEOREF = StepSpec(
 
 # --------------------------------------------------------------------------------------------------- dense
 DENSE = StepSpec(
-    name="dense", title="Dense surface", version=1,
+    name="dense", title="Dense surface", version=3,
     description="Dense point cloud, DSM and orthophoto on the CPU (docs/dense.md).",
     function="georef_core.steps.dense:step_entry", depends_on=("georef",), heavy=True, site_data=("crs",),
+    # spatial tiles that workers run in parallel (steps/dense_tiles.py; docs/dense.md "Large surveys")
+    split=Split(plan="georef_core.steps.dense_tiles:plan", part="georef_core.steps.dense_tiles:part",
+                merge="georef_core.steps.dense_tiles:merge"),
     # the names and defaults of DenseOptions (steps/dense.py; tests/steps/test_step_contract.py holds them equal)
     options=(
         Option("max_image_size", "integer", 1600, "images are matched at most this large (longer side)",
@@ -166,11 +169,19 @@ DENSE = StepSpec(
         Option("stereo", "object", None, "stereo matching settings (dense/rectified_stereo.py)", advanced=True),
         Option("fusion", "object", None, "depth fusion settings (dense/depth_fusion.py)", advanced=True),
         Option("ortho_options", "object", None, "orthophoto settings (dense/orthophoto.py)", advanced=True),
+        Option("coarse", "object", None, "coarse pass settings (dense/coarse_pass.py: factor, 1 = off)",
+               advanced=True),
+        Option("tiles", "integer", 0, "spatial tiles run as parts (0: auto, 1 up to 250 images then about one "
+               "per 100, for memory: tiles cost CPU; 1: one run)", minimum=0, maximum=64, advanced=True),
+        Option("tile_margin", "number", 0.25, "a tile takes the images whose ground footprint meets it grown by this "
+               "many footprints", minimum=0.0, maximum=5.0, advanced=True),
     ),
     outputs=(
-        Output("dsm", "dense/dsm.tif", "surface model, cloud-optimised GeoTIFF", "image/tiff"),
-        Output("dsm_filled_mask", "dense/dsm_filled_mask.tif", "DSM cells filled by interpolation", "image/tiff"),
-        Output("ortho", "dense/ortho.tif", "orthophoto, cloud-optimised GeoTIFF", "image/tiff"),
+        Output("dsm", "dense/dsm.tif", "surface model, cloud-optimised GeoTIFF", "image/tiff", tile="heights"),
+        Output("dsm_filled_mask", "dense/dsm_filled_mask.tif", "DSM cells: 0 measured, 2 measured at coarse "
+               "resolution, 1 interpolated, 255 no data", "image/tiff"),
+        Output("dsm_support", "dense/dsm_support.tif", "DSM cells: views agreeing (0: interpolated)", "image/tiff"),
+        Output("ortho", "dense/ortho.tif", "orthophoto, cloud-optimised GeoTIFF", "image/tiff", tile="rgb"),
         Output("point_cloud", "dense/points.laz", "dense points", "application/vnd.laszip"),
         Output("summary", "dense/dense_summary.json", "the step summary", "application/json"),
     ),
@@ -183,12 +194,59 @@ DENSE = StepSpec(
     summary={"dsm": "grid and coverage", "noise": "DSM noise on flat areas", "timings_s": "seconds per stage"},
 )
 
+# ----------------------------------------------------------------------------------------------------- dtm
+DTM = StepSpec(
+    name="dtm", title="Bare-earth DTM", version=1,
+    description="Ground classification of the dense surface (progressive morphological filter: machines, vehicles "
+                "and other steep-sided objects removed, stockpiles kept), the bare-earth DTM and the classified "
+                "point cloud (docs/deliverables.md).",
+    function="georef_core.steps.dtm:step_entry", depends_on=("dense",), site_data=("crs",),
+    # the names and defaults of dtm.ground_filter.GroundFilterOptions (held equal by tests/dtm/test_dtm_step.py)
+    options=(
+        Option("cell_m", "number", 0.5, "classification cell", minimum=0.05, maximum=10.0, unit="m", advanced=True),
+        Option("max_object_m", "number", 14.0, "objects up to this wide (narrow side) are removed", minimum=0.5,
+               maximum=200.0, unit="m"),
+        Option("slope", "number", 1.2, "steepest ground (rise over run; 1.2 = 50 deg): steeper steps mark objects",
+               minimum=0.05, maximum=10.0),
+        Option("elevation_threshold_m", "number", 0.3, "added to slope x cell: the drop per opening step that "
+               "marks an object", minimum=0.0, maximum=10.0, unit="m", advanced=True),
+        Option("ground_tolerance_m", "number", 0.25, "cells and points within this above the ground are ground",
+               minimum=0.01, maximum=10.0, unit="m"),
+        Option("low_outlier_m", "number", 1.0, "minimum-surface cells this far below their neighbours are clamped",
+               minimum=0.01, maximum=100.0, unit="m", advanced=True),
+        Option("low_noise_m", "number", 1.0, "points this far below the DTM are low noise (class 7)", minimum=0.01,
+               maximum=100.0, unit="m", advanced=True),
+        Option("min_object_area_m2", "number", 1.0, "smaller removed regions are counted as spikes", minimum=0.0,
+               maximum=10000.0, unit="m2", advanced=True),
+    ),
+    outputs=(
+        Output("dtm", "dtm/dtm.tif", "bare-earth terrain model, cloud-optimised GeoTIFF", "image/tiff"),
+        Output("dtm_mask", "dtm/dtm_interpolated_mask.tif", "DTM cells: 0 ground measured, 1 object removed and "
+               "interpolated, 2 ground interpolated by the dense step, 255 no data", "image/tiff"),
+        Output("classified_points", "dtm/points_classified.laz", "dense points with ASPRS classes (2 ground, 1 "
+               "objects, 7 low noise)", "application/vnd.laszip"),
+        Output("summary", "dtm/dtm_summary.json", "ground share, removed objects, parameters", "application/json"),
+    ),
+    products=(
+        Product("dtm", "Terrain model (DTM)", "Bare earth: machines and other objects removed; cloud-optimised "
+                "GeoTIFF, ellipsoidal heights", ("dtm",), (("", "GeoTIFF"),)),
+        Product("dtm-mask", "DTM interpolation mask", "Where the DTM was interpolated under removed objects",
+                ("dtm_mask",), (("", "GeoTIFF"),)),
+        Product("classified-points", "Classified point cloud", "Dense points, ASPRS classes: 2 ground, 1 objects, "
+                "7 low noise", ("classified_points",), (("", "LAZ"),)),
+    ),
+    summary={"ground_share": "share of DSM cells kept as ground", "removed_objects": "objects removed",
+             "removed_area_m2": "their area", "points_ground_share": "share of points classed ground",
+             "interpolation_check": "hidden ground patches refilled: RMS and 95th percentile error"},
+)
+
 # ------------------------------------------------------------------------------------------------- volumes
 VOLUMES = StepSpec(
-    name="volumes", title="Stockpile volumes", version=2,
+    name="volumes", title="Stockpile volumes", version=3,
     description="The volume of every stockpile outline of the site on the DSM above its base surface, with its "
                 "uncertainty (docs/volumes.md).",
-    function="georef_core.steps.volumes:step_entry", depends_on=("dense",), site_data=("crs", "stockpiles"),
+    function="georef_core.steps.volumes:step_entry", depends_on=("dense",), soft_after=("dtm",),
+    site_data=("crs", "stockpiles"),
     options=(
         Option("dsm_sigma_m", "number", None, "DSM noise (default: the dense step's figure)", minimum=0.0,
                maximum=10.0, unit="m", advanced=True),
@@ -210,6 +268,10 @@ VOLUMES = StepSpec(
         Option("base_model_spread", "boolean", True, "compute the base-model uncertainty term", advanced=True),
         Option("surface_sigma_m", "number", None, "noise of an imported base surface", minimum=0.0, maximum=10.0,
                unit="m", advanced=True),
+        Option("surface", "string", "dsm", "the surface measured: the DSM, or the DTM (bare earth: machines "
+               "standing on a pile removed; needs the dtm step)", choices=("dsm", "dtm")),
+        Option("accept_interpolated", "boolean", False, "count interpolated DSM cells as measured in the "
+               "uncertainty (off: they get their own bound, outside the stated uncertainty)", advanced=True),
     ),
     outputs=(
         Output("volumes", "volumes/volumes.json", "per stockpile: volume, cut, fill, area, uncertainty",
@@ -222,5 +284,160 @@ VOLUMES = StepSpec(
     summary={"stockpiles": "number of stockpiles measured"},
 )
 
-for _spec in (GNSS, GEOREF, DENSE, VOLUMES):
+# -------------------------------------------------------------------------------------------------- design
+DESIGN = StepSpec(
+    name="design", title="Cut/fill to design", version=1,
+    description="The surveyed surface against the site's design surface (LandXML, DXF or GeoTIFF) inside its area: "
+                "cut, fill, on-grade share and the cells whose difference the survey's accuracy cannot resolve "
+                "(docs/design.md).",
+    function="georef_core.steps.design:step_entry", depends_on=("dense",), soft_after=("dtm",),
+    site_data=("crs", "design"),
+    options=(
+        Option("tolerance_m", "number", 0.05, "on grade within +- this", minimum=0.0, maximum=10.0, unit="m"),
+        Option("surface", "string", "dsm", "the surveyed surface compared: the DSM or the DTM (bare ground)",
+               choices=("dsm", "dtm")),
+        Option("k", "number", 1.96, "a difference below k x the cell's height sigma is not significant "
+               "(1.96: 95 %)", minimum=0.0, maximum=10.0, advanced=True),
+        Option("dsm_sigma_m", "number", None, "DSM noise (default: the dense step's figure)", minimum=0.0,
+               maximum=10.0, unit="m", advanced=True),
+        Option("vertical_rmse_m", "number", None, "vertical accuracy (default: the check points' vertical RMSE)",
+               minimum=0.0, maximum=10.0, unit="m", advanced=True),
+        Option("correlation_length_m", "number", None, "correlation length of the DSM noise", minimum=0.0,
+               maximum=1000.0, unit="m", advanced=True),
+        Option("design_sigma_m", "number", None, "the design surface's own height error (default 0: exact)",
+               minimum=0.0, maximum=10.0, unit="m", advanced=True),
+        Option("surface_name", "string", None, "which surface of a LandXML file holding several", advanced=True),
+    ),
+    outputs=(
+        Output("quantities", "design/cut_fill.json", "cut, fill, net, on-grade share and their uncertainty",
+               "application/json"),
+        Output("difference", "design/difference.tif", "surveyed minus design (m), GeoTIFF", "image/tiff",
+               tile="difference"),
+        Output("classes", "design/classes.tif", "cut / fill / on grade / not significant / no data, GeoTIFF with a "
+               "colour table", "image/tiff"),
+        Output("contours", "design/contours.geojson", "the tolerance band's edges and the zero line",
+               "application/geo+json"),
+    ),
+    products=(
+        Product("design-cut-fill", "Cut/fill to design", "Cut, fill, net and on-grade share", ("quantities",),
+                (("", "JSON"),)),
+        Product("design-difference", "Difference to design", "Surveyed minus design, GeoTIFF (m)", ("difference",),
+                (("", "GeoTIFF"),)),
+        Product("design-classes", "Cut/fill map", "Cut / fill / on grade / not significant, GeoTIFF", ("classes",),
+                (("", "GeoTIFF"),)),
+        Product("design-contours", "Tolerance band edges", "Difference contours at +-tolerance and 0, GeoJSON",
+                ("contours",), (("", "GeoJSON"),)),
+    ),
+    summary={"cut_m3": "above design (to remove)", "fill_m3": "below design (to place)", "net_m3": "cut - fill",
+             "sigma_m3": "1 sigma of cut, fill, net", "on_grade_share": "share within +-tolerance",
+             "skipped": "true when the site has no design surface"},
+)
+
+for _spec in (GNSS, GEOREF, DENSE, DTM, VOLUMES, DESIGN):
     register(_spec)
+
+# --------------------------------------------------------------------------------------------------- datum
+DATUM = StepSpec(
+    name="datum", title="Heights in the site's datum", version=1,
+    description="Copies of the DSM, the point cloud and the control/check-point table in the site's vertical datum "
+                "(orthometric heights through the installed geoid grid), the datum written into each file "
+                "(docs/datums.md). Skipped for a site in ellipsoidal heights.",
+    function="georef_core.steps.datum:step_entry", depends_on=("georef",), soft_after=("dense",),
+    inputs=("gcp/", "survey.json"), site_data=("crs", "vertical"),
+    options=(
+        Option("vertical_datum", "string", None, "heights in this datum (default: the site's vertical datum): "
+               "egm96, egm2008 (where its grid is installed) or an EPSG vertical CRS code such as EPSG:5773"),
+        Option("node_step_m", "number", 10.0, "the height change is computed by PROJ at nodes this far apart and "
+               "interpolated bilinearly in between", minimum=0.5, maximum=1000.0, unit="m", advanced=True),
+        Option("point_cloud", "boolean", True, "also convert the point cloud", advanced=True),
+        Option("points_crs", "string", None, "CRS of gcp/points.csv (default: survey.json's points_crs)",
+               advanced=True),
+    ),
+    outputs=(
+        Output("dsm", "datum/dsm_orthometric.tif", "DSM in the site's vertical datum (compound CRS)", "image/tiff"),
+        Output("point_cloud", "datum/points_orthometric.laz", "point cloud in the site's vertical datum",
+               "application/vnd.laszip"),
+        Output("points_csv", "datum/ground_points.csv", "control and check points with residuals, heights in the "
+               "site's datum", "text/csv"),
+        Output("points_geojson", "datum/ground_points.geojson", "the same points as GeoJSON",
+               "application/geo+json"),
+        Output("summary", "datum/datum_summary.json", "the step summary", "application/json"),
+    ),
+    products=(
+        Product("files/datum/dsm_orthometric.tif", "Surface model (DSM), site heights",
+                "Cloud-optimised GeoTIFF in the site's vertical datum", ("dsm",), (("", "GeoTIFF"),)),
+        Product("files/datum/points_orthometric.laz", "Point cloud, site heights",
+                "LAZ in the site's vertical datum", ("point_cloud",), (("", "LAZ"),)),
+        Product("files/datum/ground_points.csv", "Control and check points, site heights",
+                "Surveyed points and their residuals, heights in the site's vertical datum", ("points_csv",),
+                (("", "CSV"),)),
+    ),
+    summary={"datum": "the vertical datum written", "operation": "PROJ's transformation and grid",
+             "files": "what was converted (height change range per file)",
+             "skipped": "true for a site in ellipsoidal heights"},
+)
+register(DATUM)
+
+# ------------------------------------------------------------------------------------------------- exports
+_EXPORT_FILES = (
+    ("dxf", "exports/site.dxf", "contours (minor, index, labels), stockpile outlines, surveyed points: DXF",
+     "image/vnd.dxf", "DXF drawing", "Contours, index labels, stockpile outlines and surveyed points (AutoCAD, "
+     "Civil 3D, TBC)", "DXF"),
+    ("dxf_prj", "exports/site.prj", "the DXF's CRS (ESRI WKT: DXF has none)", "text/plain", "DXF projection file",
+     "The CRS of the DXF drawing (.prj)", "PRJ"),
+    ("gpkg", "exports/site.gpkg", "layers contours, stockpiles, points: GeoPackage", "application/geopackage+sqlite3",
+     "GeoPackage", "Contours, stockpile outlines with volumes, surveyed points (QGIS, ArcGIS)", "GeoPackage"),
+    ("shp", "exports/shapefiles.zip", "contours, stockpiles, points: Shapefiles, zipped", "application/zip",
+     "Shapefiles", "Contours, stockpile outlines, surveyed points as zipped Shapefiles", "ZIP"),
+    ("contours_geojson", "exports/contours.geojson", "contours: GeoJSON (elevation_m, index)",
+     "application/geo+json", "Contours (GeoJSON)", "Contour lines with elevation and index attributes", "GeoJSON"),
+    ("landxml", "exports/surface.xml", "the surveyed TIN: LandXML 1.2", "application/xml", "Surface TIN (LandXML)",
+     "The surveyed surface as a LandXML 1.2 TIN (Civil 3D, TBC, 12d)", "LandXML"),
+    ("kmz", "exports/ortho.kmz", "the orthophoto as a Google Earth overlay", "application/vnd.google-earth.kmz",
+     "Orthophoto overlay (KMZ)", "The orthophoto for Google Earth and phones (reduced resolution)", "KMZ"),
+    ("xlsx", "exports/site.xlsx", "surveyed points and volumes: XLSX",
+     "application/vnd.openxmlformats-officedocument.spreadsheetml.sheet", "Points and volumes (XLSX)",
+     "Surveyed points with residuals and stockpile volumes, one sheet each", "XLSX"),
+)
+EXPORTS = StepSpec(
+    name="exports", title="Exports", version=1,
+    description="Contours of the DSM or DTM and the run's deliverables as DXF, GeoPackage, Shapefile, GeoJSON, "
+                "LandXML (surveyed TIN), KMZ (orthophoto overlay), XLSX and CSV (docs/deliverables.md).",
+    function="georef_core.steps.exports:step_entry", depends_on=("dense",),
+    soft_after=("dtm", "volumes", "datum"),
+    inputs=("gcp/", "survey.json"), site_data=("crs",),
+    options=(
+        Option("interval_m", "number", None, "contour interval (default: a round interval giving at most 40 "
+               "levels)", minimum=0.01, maximum=1000.0, unit="m"),
+        Option("surface", "string", "dsm", "contours and TIN of the DSM or of the DTM (bare ground; the DSM when "
+               "the run has no DTM)", choices=("dsm", "dtm")),
+        Option("formats", "string", "all", "'all' or a comma-separated list of geojson, dxf, gpkg, shp, landxml, "
+               "kmz, xlsx, csv"),
+        Option("index_every", "integer", 5, "every N-th contour is an index contour (labelled)", minimum=1,
+               maximum=100),
+        Option("heights", "string", "site", "site: the DSM in the site's vertical datum where the datum step wrote "
+               "one; ellipsoidal: the dense step's DSM", choices=("site", "ellipsoidal"), advanced=True),
+        Option("smoothing_m", "number", None, "Gaussian sigma of the smoothing before contouring (default 1.5 "
+               "cells; 0: none)", minimum=0.0, maximum=100.0, unit="m", advanced=True),
+        Option("tin_spacing_m", "number", None, "LandXML TIN vertex spacing (default 0.5 m or more, at most "
+               "250 000 vertices)", minimum=0.01, maximum=1000.0, unit="m", advanced=True),
+        Option("geojson_crs", "string", "wgs84", "GeoJSON coordinates: WGS 84 (RFC 7946) or the site CRS",
+               choices=("wgs84", "site"), advanced=True),
+    ),
+    outputs=tuple(Output(k, p, d, m) for k, p, d, m, *_ in _EXPORT_FILES) + (
+        Output("stockpiles_geojson", "exports/stockpiles.geojson", "stockpile outlines with volumes: GeoJSON",
+               "application/geo+json"),
+        Output("points_geojson", "exports/points.geojson", "surveyed points with residuals: GeoJSON",
+               "application/geo+json"),
+        Output("points_csv", "exports/points.csv", "surveyed points with residuals: CSV", "text/csv"),
+        Output("volumes_csv", "exports/volumes.csv", "stockpile volumes: CSV", "text/csv"),
+        Output("manifest", "exports/exports.json", "what was written and what was skipped, CRS, vertical datum",
+               "application/json"),
+    ),
+    products=tuple(Product(f"files/{p}", title, desc, (k,), (("", label),))
+                   for k, p, _d, _m, title, desc, label in _EXPORT_FILES),
+    summary={"written": "files written per format", "skipped": "what was not written and why",
+             "contours": "interval and number of lines", "tin": "TIN points, faces, spacing, departure from the "
+             "surface", "crs": "CRS of every file", "vertical_datum": "the heights' datum"},
+)
+register(EXPORTS)

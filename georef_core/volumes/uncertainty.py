@@ -75,11 +75,13 @@ class NoiseModel:
     @classmethod
     def for_dsm(cls, dsm_path, sigma_z_m: float | None = None, height_bias_m: float | None = None,
                 correlation_length_m: float | None = None) -> "NoiseModel":
-        """Given values first, then ``dense_summary.json`` next to the DSM (keys ``dsm_vertical_rmse_m``,
+        """Given values first, then ``dense_summary.json`` (a DTM: ``dtm_summary.json``) next to the DSM (keys ``dsm_vertical_rmse_m``,
         ``dsm_height_bias_m`` or ``check_height_bias_m``, ``dsm_error_correlation_length_m``), then the
         defaults (5 cm, 2 cm, 1 m)."""
         summary = {}
         sp = Path(dsm_path).with_name("dense_summary.json")
+        if not sp.exists() and Path(dsm_path).with_name("dtm_summary.json").exists():
+            sp = Path(dsm_path).with_name("dtm_summary.json")  # a DTM: the dtm step carries the DSM's error model
         if sp.exists():
             try:
                 summary = json.loads(sp.read_text())

@@ -42,6 +42,9 @@ class VolumeOptions:
     max_fill_fraction: float = 0.05  # nodata inside the polygon filled up to this fraction of its area
     base_model_spread: bool = True  # compute mean/plane/TIN nets for the base-model uncertainty term
     surface_sigma_m: float | None = None  # noise of an imported base surface (default: its dense_summary.json or 0)
+    # interpolated cells (the dense step's mask value 1, and no-data filled here): False: outside the stated
+    # uncertainty, reported with their own bound ("not supported by measurement"); True: taken as measured
+    accept_interpolated: bool = False
 
 
 @dataclass
@@ -56,6 +59,7 @@ class VolumeResult:
     base_nets_m3: dict = field(default_factory=dict)  # net with each outline base (method spread)
     filled_nodata_m2: float = 0.0
     dsm_interpolated_m2: float | None = None  # cells the dense step interpolated (dsm_filled_mask.tif), if known
+    interpolated: dict = field(default_factory=dict)  # share, net and bound of the interpolated cells (module doc)
     base_height_sigma_m: float = 0.0  # 1 sigma of the mean base height (what a locked base carries)
     dsm: dict = field(default_factory=dict)
     polygon: dict = field(default_factory=dict)
@@ -244,9 +248,9 @@ def _integrate_window(w: _DsmWindow, surface: BaseSurface, z_ref: float):
 FILLED_MASK = "dsm_filled_mask.tif"  # written by the dense step next to dsm.tif: 0 measured, 1 interpolated, 255 none
 
 
-def _interpolated_area_m2(w: _DsmWindow) -> float | None:
-    """Area inside the polygon of cells the dense step interpolated (``dsm_filled_mask.tif`` next to the DSM,
-    same grid), weighted by coverage; None without such a mask."""
+def _filled_mask_window(w: _DsmWindow) -> np.ndarray | None:
+    """The dense step's mask (``dsm_filled_mask.tif`` next to the DSM, same grid) over the window; None without
+    one."""
     import rasterio
     from rasterio.windows import Window
 
@@ -258,14 +262,47 @@ def _interpolated_area_m2(w: _DsmWindow) -> float | None:
             if (ds.width, ds.height) != (w.info.width, w.info.height) or \
                     not np.allclose(tuple(ds.transform)[:6], (w.info.dx, 0, w.info.x0, 0, w.info.dy, w.info.y0)):
                 return None
-            acc = Integrator(w.cov, w.block, 0.0)
-            for r0, n in w.strips():
-                sub = w.window.sub(r0, n)
-                m = ds.read(1, window=Window(sub.col0, sub.row0, sub.ncols, sub.nrows))
-                acc.add(np.where(m == 1, np.float32(np.nan), np.float32(0.0)), r0, (0.0, 0.0, 0.0))
+            return ds.read(1, window=Window(w.window.col0, w.window.row0, w.window.ncols, w.window.nrows))
     except rasterio.errors.RasterioError:
         return None
-    return acc.result().missing * w.window.cell_area_m2
+
+
+MASK_INTERPOLATED = 1  # dsm_filled_mask.tif: 0 measured, 2 measured at coarse resolution, 1 interpolated, 255 none
+
+
+def _interpolated_part(w: _DsmWindow, surface: BaseSurface, z_ref: float, interp: np.ndarray, sigma_z_m: float,
+                       a_cell: float) -> dict:
+    """The interpolated cells ``interp`` (window-sized bool) inside the polygon: their area, the net volume on
+    them, and the bound: per connected interpolated area, its area inside the polygon x the height range of
+    the measured cells around it (at least 3 sigma_z). Harmonic interpolation stays within its rim's heights;
+    the bound says how far the volume on those cells moves if the unseen surface lies anywhere in that range."""
+    from scipy import ndimage
+
+    z = w.load()
+    rows = np.flatnonzero(interp.any(axis=1))
+    r0, r1 = int(rows[0]), int(rows[-1]) + 1
+    cov = w.cov.rows(r0, r1 - r0).dense(np.float32)
+    band = interp[r0:r1] & (cov > 0)
+    if not band.any():
+        return {"area_m2": 0.0, "net_m3": 0.0, "bound_m3": 0.0, "areas": 0}
+    sub = w.window.sub(r0, r1 - r0)
+    plane = surface.plane_in_window(sub)
+    grid = None if plane is not None else surface.grid_in_window(sub, w.info.crs, cov)
+    acc = Integrator(w.cov, w.block, z_ref)
+    acc.add(np.where(band, z[r0:r1], np.float32(np.nan)).astype(np.float32), r0, plane, grid)
+    sums = acc.result()
+    labels, n = ndimage.label(interp, structure=np.ones((3, 3)))
+    rim = ndimage.grey_dilation(labels, size=(3, 3)) * (~interp & np.isfinite(z))
+    idx = np.arange(1, n + 1)
+    hi = ndimage.maximum(z, rim, idx)
+    lo = ndimage.minimum(z, rim, idx)
+    rng = np.nan_to_num(np.asarray(hi, float) - np.asarray(lo, float), nan=0.0)
+    h = np.maximum(rng, 3.0 * sigma_z_m)
+    lab_band = labels[r0:r1]
+    area_r = np.bincount(lab_band[band], weights=cov[band].astype(float), minlength=n + 1)[1:] * a_cell
+    return {"area_m2": float(area_r.sum()), "net_m3": float((sums.cut - sums.fill) * a_cell),
+            "bound_m3": float(np.sum(area_r * h)), "areas": int(np.count_nonzero(area_r > 0)),
+            "largest_rim_range_m": float(rng[area_r > 0].max()) if np.any(area_r > 0) else 0.0}
 
 
 def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | None = None,
@@ -342,6 +379,7 @@ def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | Non
         z_ref = float(getattr(surface, "elevation_m", 0.0) or 0.0)
     sums = _integrate_window(w, surface, z_ref)
     filled_m2 = 0.0
+    filled_here = None
     if sums.missing_base > 0:  # grid base (imported surface) without data under part of the polygon
         miss = sums.missing_base * a_cell
         where = getattr(surface, "path", "") or info.path
@@ -363,18 +401,36 @@ def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | Non
             raise InputFileError(info.path, f"{filled_m2:.2f} m^2 ({100 * frac:.1f} %) of polygon {poly.name!r} has no "
                                             f"DSM data; at most {100 * o.max_fill_fraction:g} % is filled by interpolation")
         z = w.load()
+        filled_here = ~np.isfinite(z)
         rep = fill_holes(z, (w.dense() > 0) & ~np.isfinite(z))
+        filled_here &= np.isfinite(z)
         warnings.append(f"{filled_m2:.2f} m^2 without DSM data inside the polygon filled by interpolation "
                         f"({rep.n_holes} hole(s), largest {rep.largest_hole_cells} cells)")
         sums = _integrate_window(w, surface, z_ref)
     if sums.area <= 0:
         raise InputFileError(info.path, f"the DSM has no data inside polygon {poly.name!r}")
-    interpolated_m2 = _interpolated_area_m2(w)
-    if interpolated_m2:
+    mask = _filled_mask_window(w)
+    interp = None if mask is None else mask == MASK_INTERPOLATED
+    interpolated_m2 = None
+    if interp is not None:
+        interpolated_m2 = float(np.sum(w.cov.dense(np.float32)[interp], dtype=np.float64)) * a_cell if interp.any() \
+            else 0.0
         frac = interpolated_m2 / poly.area_m2
         if frac > 0.01:
             warnings.append(f"{interpolated_m2:.2f} m^2 ({100 * frac:.1f} %) of the polygon was interpolated by the "
                             f"dense step ({FILLED_MASK})")
+    if filled_here is not None:
+        interp = filled_here if interp is None else (interp | filled_here)
+    if interp is not None and interp.any():
+        part = _interpolated_part(w, surface, z_ref, interp, model.sigma_z_m, a_cell)
+    else:
+        part = {"area_m2": 0.0, "net_m3": 0.0, "bound_m3": 0.0, "areas": 0}
+    part["fraction"] = part["area_m2"] / poly.area_m2
+    part["accepted"] = bool(o.accept_interpolated)
+    if part["area_m2"] > 0 and not o.accept_interpolated:
+        warnings.append(f"{part['area_m2']:.2f} m^2 ({100 * part['fraction']:.1f} %) of the polygon is interpolated, "
+                        f"not measured: {part['net_m3']:.3f} m^3 of the net stand on it, within +-{part['bound_m3']:.3f}"
+                        f" m^3 (not in the stated uncertainty; accept_interpolated to count it as measured)")
     timings["integrate_s"] = time.perf_counter() - t
 
     area = sums.area * a_cell
@@ -440,7 +496,8 @@ def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | Non
         noise_s2 = e2 / npair / 2.0 if npair else 0.0
         spread = math.sqrt(max(s2 - noise_s2, 0.0))
     comp["base_model_m3"] = spread
-    comp["nodata_fill_m3"] = (filled_m2 + (interpolated_m2 or 0.0)) * model.sigma_z_m
+    # interpolated cells: a floor term when accepted as measured; else outside the stated uncertainty (own bound)
+    comp["nodata_fill_m3"] = part["area_m2"] * model.sigma_z_m if o.accept_interpolated else 0.0
     tot = combine(comp)
     base_h_sigma = math.sqrt(base_sigma_vol ** 2 + spread ** 2) / area
     timings["uncertainty_s"] = time.perf_counter() - t
@@ -462,14 +519,22 @@ def compute_volume(dsm, polygon: AreaPolygon, base, options: VolumeOptions | Non
            "model": model.to_dict(),
            "notes": ("1 sigma from the DSM noise (sigma_z per cell, Gaussian correlation over correlation_length_m), "
                      "the base's own error, the vertical bias (0 when the base comes from this DSM: it cancels), the "
-                     "spread of the mean/plane/TIN bases beyond noise, and interpolated cells (filled here or by the "
-                     "dense step) x sigma_z, combined in quadrature; ci95 = 1.96 sigma")}
+                     "spread of the mean/plane/TIN bases beyond noise, combined in quadrature; ci95 = 1.96 sigma. "
+                     + ("Interpolated cells (filled here or by the dense step) accepted as measured: their area x "
+                        "sigma_z is in it." if o.accept_interpolated else
+                        "It covers the measured cells only: interpolated cells (filled here or by the dense step) "
+                        "are not supported by measurement; their share of the net and its bound are in "
+                        "'interpolated'.")),
+           "covers": "all cells (interpolated ones accepted)" if o.accept_interpolated else "measured cells"}
+    if not o.accept_interpolated and part["bound_m3"] > 0:
+        unc["ci95_with_interpolated_bound_m3"] = _r(tot["ci95_m3"] + part["bound_m3"], 3)
     if isinstance(surface, PlaneBase) and surface.fit:
         unc["plane_fit_rms_m"] = surface.fit.get("rms_m")
     return VolumeResult(
         name=poly.name, cut_m3=cut, fill_m3=fill, net_m3=cut - fill, area_m2=area, base=bdict, uncertainty=unc,
         base_nets_m3={k: round(v, 3) for k, v in nets.items()}, filled_nodata_m2=filled_m2,
         dsm_interpolated_m2=None if interpolated_m2 is None else round(interpolated_m2, 4),
+        interpolated={k: (round(v, 4) if isinstance(v, float) else v) for k, v in part.items()},
         base_height_sigma_m=base_h_sigma,
         dsm={"path": str(info.path), "crs": info.crs_label(), "cell_size_m": round(cell, 6),
              "window": [w.window.row0, w.window.col0, w.window.nrows, w.window.ncols]},

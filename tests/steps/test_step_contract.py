@@ -25,7 +25,7 @@ def test_core_steps_declared_in_order_without_science_imports():
             "print(any(m in sys.modules for m in ('numpy', 'pycolmap', 'scipy', 'cv2')))")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
                          env={**os.environ, "GEOREF_STEP_PLUGINS": ""}).stdout.split()
-    assert out == ["gnss,georef,dense,volumes", "False"]
+    assert out == ["gnss,georef,dense,dtm,volumes,design,datum,exports", "False"]
 
 
 def test_options_are_checked_and_named():
@@ -85,7 +85,7 @@ def test_toy_step_in_the_cli(tmp_path):
     r = _cli("steps", "--json")
     assert r.returncode == 0, r.stderr
     names = [s["name"] for s in json.loads(r.stdout)["items"]]
-    assert names == ["gnss", "georef", "dense", "volumes", "toy"]
+    assert names == ["gnss", "georef", "dense", "dtm", "volumes", "design", "datum", "exports", "toy"]
     survey = tmp_path / "survey"
     survey.mkdir()
     (survey / "a.txt").write_text("x")
@@ -125,7 +125,7 @@ def test_toy_step_through_the_api_and_a_real_worker(tmp_path, toy_registered):
         add_user(p, "toy@example.org", org_admin=True)
         api = Api(p, "toy@example.org")
         steps = {s["name"]: s for s in api.get("/api/v1/steps").json()["items"]}
-        assert list(steps) == ["gnss", "georef", "dense", "volumes", "toy", "report"]
+        assert list(steps) == ["gnss", "georef", "dense", "dtm", "volumes", "design", "datum", "exports", "toy", "report"]
         toy = steps["toy"]
         assert toy["options_schema"]["properties"]["repeat"]["anyOf"][0] == {"type": "integer", "minimum": 1,
                                                                              "maximum": 5}

@@ -1,0 +1,156 @@
+"""The dense step on a large simulated survey, in tiles (steps/dense_tiles.py): time per image of each stage,
+peak memory, and the speed-up of 2 (or more) worker processes over 1 running the same tiles.
+
+Simulates a survey (``georef simulate --images N``: 1600 x 1200 images, default 200, seed 5; or ``--survey``),
+makes its true orientations (as bench/dense_speed.py), then for each process count P in ``--processes``
+(default 1,2): the plan in this process, the parts (one per tile) in a pool of P fresh processes
+(multiprocessing, one part per child: the same ``dense_tiles.part`` a Celery worker runs through
+worker/pipeline.run_part), the merge in this process. Prints per P: wall seconds of plan / parts / merge, the
+speed-up against P = 1 in the same script, the parallel fraction (Amdahl) from it and the projected 4-worker
+speed-up; the stage times per image (summed over the tiles: the tiles' margins make some images work twice);
+the peak RSS of the largest part (VmHWM of the children, ru_maxrss) and of this process (plan + merge).
+With ``--threads`` (default 1) each part uses that many threads, so P processes use P cores.
+
+    .venv/bin/python bench/scale_dense.py [--images 200] [--tiles 0] [--processes 1,2] [--threads 1] [--tile-margin 0.25]
+        [--max-image-size 1600] [--one-run] [--survey DIR] [--work DIR] [--seed 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import resource
+import shutil
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _run_part(args) -> tuple[int, float, int]:
+    out_dir, options, part = args
+    from georef_core.steps.contract import Workspace
+    from georef_core.steps.dense_tiles import part as run_part
+
+    t0 = time.perf_counter()
+    ws = Workspace(out_dir, out_dir)
+    ws.part_dir("dense", part["index"]).mkdir(parents=True, exist_ok=True)
+    run_part(ws, options, part, None, {})
+    return part["index"], time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def _one_run(args) -> tuple[float, int]:
+    out_dir, options = args
+    from georef_core.steps.dense import run_dense
+
+    t0 = time.perf_counter()
+    run_dense(out_dir, dict(options, tiles=1))
+    return time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--images", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--tiles", type=int, default=0, help="0: the step's automatic count")
+    ap.add_argument("--processes", default="1,2")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--tile-margin", type=float, default=0.25, help="footprints (the step's tile_margin)")
+    ap.add_argument("--max-image-size", type=int, default=1600)
+    ap.add_argument("--survey", type=Path)
+    ap.add_argument("--one-run", action="store_true", help="also the step in one run (tiles 1): time and peak RSS")
+    ap.add_argument("--work", type=Path, default=Path("/tmp/georef_scale_dense"))
+    args = ap.parse_args(argv)
+
+    from georef_core.cli.main import main as georef
+    from georef_core.photo.oriented_images import oriented_images_from_simulator_truth
+    from georef_core.steps.contract import Workspace
+    from georef_core.steps.dense_tiles import merge, plan
+
+    survey = args.survey
+    if survey is None:
+        survey = args.work / f"survey_{args.images}_seed{args.seed}"
+        if not (survey / "truth" / "dsm.tif").is_file():
+            t0 = time.perf_counter()
+            rc = georef(["simulate", str(survey), "--images", str(args.images), "--seed", str(args.seed), "--no-gnss",
+                         "--quiet"])
+            if rc:
+                return rc
+            dt = time.perf_counter() - t0
+            print(f"simulated {args.images} images in {dt:.1f} s = {dt / args.images:.2f} s per image "
+                  f"(1000 images: ~{1000 * dt / args.images / 60:.0f} min)")
+    n_img = len(json.loads((survey / "truth" / "camera_poses.json").read_text()).get("images") or []) or args.images
+    options = {"tiles": args.tiles, "tile_margin": args.tile_margin, "workers": args.threads,
+               "max_image_size": args.max_image_size}
+    results = {}
+    for P in [int(x) for x in args.processes.split(",")]:
+        run = args.work / f"run_p{P}"
+        shutil.rmtree(run, ignore_errors=True)
+        oriented_images_from_simulator_truth(survey).write(run / "oriented_images.json")
+        ws = Workspace(run, run)
+        t0 = time.perf_counter()
+        parts = [dict(p, index=k) for k, p in enumerate(plan(ws, options, {}))]
+        t_plan = time.perf_counter() - t0
+        if len(parts) < 2:
+            print("one tile: set --tiles 2 or more")
+            return 2
+        t1 = time.perf_counter()
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(P, maxtasksperchild=1) as pool:
+            done = pool.map(_run_part, [(run, options, p) for p in parts], chunksize=1)
+        t_parts = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        summary = merge(ws, options, parts, None, {})
+        t_merge = time.perf_counter() - t2
+        wall = time.perf_counter() - t0
+        peak_child_mb = max(d[2] for d in done) / 1024
+        results[P] = {"wall": wall, "plan": t_plan, "parts": t_parts, "merge": t_merge, "summary": summary,
+                      "peak_part_mb": peak_child_mb,
+                      "peak_main_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                      "part_s": sorted(round(d[1], 1) for d in done)}
+        print(f"\nP = {P} processes x {args.threads} thread(s), {len(parts)} tiles {summary['tiles']['shape']}, "
+              f"{n_img} images ({summary['tiles']['images_processed']} tile-images, overlap factor "
+              f"{summary['tiles']['overlap_factor']}): wall {wall:.1f} s = {wall / n_img:.2f} s per image "
+              f"(plan {t_plan:.1f}, parts {t_parts:.1f}, merge {t_merge:.1f}); part times {results[P]['part_s']}")
+        print(f"  peak RSS: largest part {peak_child_mb:.0f} MB, plan + merge process {results[P]['peak_main_mb']:.0f} "
+              f"MB; load average {os.getloadavg()[0]:.2f}")
+    if args.one_run:
+        run = args.work / "run_one"
+        shutil.rmtree(run, ignore_errors=True)
+        oriented_images_from_simulator_truth(survey).write(run / "oriented_images.json")
+        with mp.get_context("spawn").Pool(1) as pool:
+            t_one, rss_one = pool.apply(_one_run, ((run, options),))
+        r0 = next(iter(results.values()))
+        print(f"\none run (tiles 1, 1 process): {t_one:.1f} s = {t_one / n_img:.2f} s per image, peak RSS "
+              f"{rss_one / 1024:.0f} MB; tiles / one run: time {r0['wall'] / t_one:.2f}, peak memory "
+              f"{r0['peak_part_mb'] / (rss_one / 1024):.2f}")
+    base = results.get(1)
+    r1 = next(iter(results.values()))
+    t = r1["summary"]["timings_s"]
+    print(f"\nstage times summed over the tiles (P = {next(iter(results))}), per image of the survey:")
+    for k, v in t.items():
+        print(f"  {k:<16}{v:9.1f} s {v / n_img:8.3f} s/image")
+    if base:
+        for P, r in results.items():
+            if P == 1:
+                continue
+            s = base["wall"] / r["wall"]
+            s_parts = base["parts"] / r["parts"]
+            p = min(1.0, max(0.0, (1 - 1 / s) / (1 - 1 / P)))
+            s4 = 1 / ((1 - p) + p / 4)
+            print(f"speed-up {P} vs 1 process: {s:.2f}x overall ({s_parts:.2f}x on the parts); parallel fraction "
+                  f"(Amdahl) {p:.3f}; projected 4 workers on 4+ free cores: {s4:.2f}x (a projection)")
+        serial = base["plan"] + base["merge"]
+        p_direct = base["parts"] / base["wall"]
+        print(f"serial part of the 1-process run (plan + merge): {serial:.1f} s of {base['wall']:.1f} s; with tiles "
+              f"balanced, 4 workers: {1 / ((1 - p_direct) + p_direct / 4):.2f}x (a projection from the timings)")
+    (args.work / "scale_dense_result.json").write_text(json.dumps(
+        {str(P): {k: v for k, v in r.items() if k != "summary"} for P, r in results.items()}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""The DSM from tiers of support, the per-cell support raster and the measurement classes of the mask.
+
+A cell takes its height from the best tier that has points in it:
+
+1. full-resolution points agreed by ``min_views`` views or more (the fusion's first sweep);
+2. full-resolution points agreed by two views (the edge sweep: block edges, beside tall objects);
+3. the coarse pass (images matched at 1/4 of the size, ``coarse_pass.py``), binned at its own cell
+   (``coarse_resolution_m``) and read at the fine cell's centre: measured, at a lower resolution; only
+   in holes wider than 2 cells (narrower gaps are depth-map sampling gaps, better interpolated from
+   the fine cells around them).
+
+Remaining empty cells inside the coverage are interpolated (``dsm_raster.fill_holes``: harmonic).
+A tier only fills cells the better tiers left empty, so cells of tier 1 are exactly what they were
+without the other tiers.
+
+Outputs: the DSM; the mask ``dsm_filled_mask.tif`` (0 measured at full resolution, 2 measured by the
+coarse pass only, 1 interpolated, 255 no data); the support raster ``dsm_support.tif`` (uint8: the
+median number of views that agreed on the cell's points, 0 for an interpolated cell (no support),
+255 outside the coverage).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .dsm_raster import MASK_COARSE, MASK_FILLED, MASK_MEASURED, RasterGrid, bin_median, fill_holes
+
+SUPPORT_NONE = 0
+SUPPORT_NODATA = 255
+
+
+@dataclass
+class TieredDsm:
+    dsm: np.ndarray  # float32, NaN outside the coverage (filled cells included)
+    mask: np.ndarray  # uint8: 0 measured, 2 coarse, 1 interpolated, 255 no data
+    support: np.ndarray  # uint8: views agreeing (median over the cell's points), 0 interpolated, 255 none
+    counts: np.ndarray  # points per cell (the tier used)
+    stats: dict
+
+
+def _bin(grid: RasterGrid, e, n, h, min_points: int):
+    """bin_median that accepts no points."""
+    if len(e) == 0:
+        return np.full((grid.height, grid.width), np.nan, np.float32), np.zeros((grid.height, grid.width), np.int32)
+    return bin_median(grid, e, n, h, min_points)
+
+
+def _coarse_on_grid(grid: RasterGrid, e, n, h, nv, res_c: float, min_points: int):
+    """Coarse heights and views binned at ``res_c`` (cells aligned on multiples of res_c), read at the
+    fine grid's cell centres (the coarse cell containing each centre)."""
+    from .dsm_raster import grid_covering
+
+    if len(e) == 0:
+        nan = np.full((grid.height, grid.width), np.nan, np.float32)
+        return nan, nan.copy()
+    cg = grid_covering(e, n, res_c)
+    zc, _ = bin_median(cg, e, n, h, min_points)
+    vc, _ = bin_median(cg, e, n, nv.astype(np.float64), min_points)
+    E, N = grid.centres()
+    r, c = cg.cell_index(E, N)
+    ok = (r >= 0) & (r < cg.height) & (c >= 0) & (c < cg.width)
+    z = np.full(E.shape, np.nan, np.float32)
+    v = np.full(E.shape, np.nan, np.float32)
+    z[ok] = zc[r[ok], c[ok]]
+    v[ok] = vc[r[ok], c[ok]]
+    return z, v
+
+
+def tiered_dsm(grid: RasterGrid, pts: np.ndarray, n_views: np.ndarray, min_views: int,
+               coarse_pts: np.ndarray | None, coarse_views: np.ndarray | None, coarse_resolution_m: float | None,
+               max_gap_cells: float, min_points: int = 1) -> TieredDsm:
+    """The DSM of ``pts`` (E, N, h; their agreeing views ``n_views``) on ``grid``, completed by the coarse
+    points where the fine ones leave cells empty, then interpolated; with the mask and support rasters."""
+    e, n, h = pts[:, 0], pts[:, 1], pts[:, 2]
+    nv = n_views.astype(np.float64)
+    strong = n_views >= min_views
+    z1, c1 = _bin(grid, e[strong], n[strong], h[strong], min_points)
+    v1, _ = _bin(grid, e[strong], n[strong], nv[strong], min_points)
+    weak = ~strong
+    z2, c2 = _bin(grid, e[weak], n[weak], h[weak], min_points)
+    v2, _ = _bin(grid, e[weak], n[weak], nv[weak], min_points)
+    dsm = z1.copy()
+    views = v1.copy()
+    counts = c1.copy()
+    t2 = ~np.isfinite(dsm) & np.isfinite(z2)
+    dsm[t2], views[t2], counts[t2] = z2[t2], v2[t2], c2[t2]
+    fine = np.isfinite(dsm)
+    stats = {"full_resolution_cells": int(np.count_nonzero(np.isfinite(z1))), "two_view_cells": int(t2.sum()),
+             "coarse_cells": 0}
+    coarse = np.zeros(dsm.shape, bool)
+    if coarse_pts is not None and len(coarse_pts) and coarse_resolution_m:
+        zc, vc = _coarse_on_grid(grid, coarse_pts[:, 0], coarse_pts[:, 1], coarse_pts[:, 2], coarse_views,
+                                 coarse_resolution_m, min_points)
+        # narrow gaps (up to 2 cells wide: depth-map sampling gaps) are interpolated from the fine cells around
+        # them, closer to the truth than the coarse pass's smoother, noisier heights; wider holes take the coarse
+        from scipy import ndimage
+
+        far = ndimage.distance_transform_edt(~fine) >= 1.5 if fine.any() else np.ones(fine.shape, bool)
+        coarse = ~fine & np.isfinite(zc) & far
+        dsm[coarse], views[coarse] = zc[coarse], vc[coarse]
+        stats["coarse_cells"] = int(coarse.sum())
+        both = fine & np.isfinite(zc)
+        if both.sum() >= 10:  # the coarse pass against the fine one where both measured: its own check
+            d = (zc[both] - dsm[both]).astype(np.float64)
+            med = float(np.median(d))
+            stats["coarse_minus_fine_m"] = {"n": int(both.sum()), "median": round(med, 4),
+                                            "nmad": round(float(1.4826 * np.median(np.abs(d - med))), 4),
+                                            "p95_abs": round(float(np.percentile(np.abs(d), 95)), 4)}
+    filled, mask = fill_holes(dsm, max_gap_cells)
+    mask[coarse & (mask == MASK_MEASURED)] = MASK_COARSE
+    support = np.full(dsm.shape, SUPPORT_NODATA, np.uint8)
+    measured = (mask == MASK_MEASURED) | (mask == MASK_COARSE)
+    support[measured] = np.clip(np.rint(views[measured]), 1, 254).astype(np.uint8)
+    support[mask == MASK_FILLED] = SUPPORT_NONE
+    stats["interpolated_cells"] = int(np.count_nonzero(mask == MASK_FILLED))
+    return TieredDsm(filled, mask, support, counts, stats)
