@@ -22,26 +22,13 @@ import numpy as np
 
 from .camera_views import CameraView
 from .depth_fusion import FusedPoints, FusionOptions, concatenate, fuse_view, fusion_neighbours
-from .rectified_stereo import StereoOptions, pair_depth_map
+from .rectified_stereo import StereoOptions, median_depth_map, pair_depth_map
 
 
 @dataclass
 class CoarseOptions:
     factor: float = 4.0  # the coarse pass matches at 1/factor of the matching size (<= 1: no coarse pass)
     min_size_px: int = 160  # no coarse pass when the coarse images would be smaller than this (longer side)
-
-
-def _median_stack(maps: list[np.ndarray]) -> np.ndarray:
-    """Per-pixel median of the finite values (NaN where none)."""
-    if len(maps) == 1:
-        return maps[0]
-    st = np.sort(np.stack(maps), axis=0)  # NaN sorts last
-    n = np.isfinite(st).sum(axis=0)
-    lo = np.take_along_axis(st, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
-    hi = np.take_along_axis(st, np.maximum(n // 2, 0)[None], axis=0)[0]
-    out = 0.5 * (lo + hi)
-    out[n == 0] = np.nan
-    return out.astype(np.float32)
 
 
 def coarse_views(views: list[CameraView], options: CoarseOptions) -> list[CameraView] | None:
@@ -76,7 +63,7 @@ def coarse_points(views_c: list[CameraView], prior, sources, stereo: StereoOptio
                                    views_c[i], stereo)
             if dm is not None:
                 maps.append(dm)
-        return i, (_median_stack(maps) if maps else None)
+        return i, (median_depth_map(maps) if maps else None)
 
     todo = [i for i in range(len(views_c)) if sources[i]]
     for k in range(len(views_c)):  # small images: all in memory (200 KB each at 400 x 300)

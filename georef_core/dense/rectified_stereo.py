@@ -260,3 +260,17 @@ def pair_depth_map(ref: CameraView, src: CameraView, ref_gray: np.ndarray, src_g
     info = {"rectified": True, "canvas": [pair.width, pair.height], "num_disparities": pair.num_disparities,
             "valid_fraction": float(np.mean(np.isfinite(d)))}
     return depth, info
+
+
+def median_depth_map(maps: list[np.ndarray]) -> np.ndarray:
+    """A reference image's depth from its pairs' depth maps (pair_depth_map): the per-pixel median of the
+    finite values (NaN where none)."""
+    if len(maps) == 1:
+        return maps[0]
+    st = np.sort(np.stack(maps), axis=0)  # NaN sorts last
+    n = np.isfinite(st).sum(axis=0)
+    lo = np.take_along_axis(st, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(st, np.maximum(n // 2, 0)[None], axis=0)[0]
+    out = 0.5 * (lo + np.where(n > 0, hi, np.nan))
+    out[n == 0] = np.nan
+    return out.astype(np.float32)

@@ -106,19 +106,6 @@ def _rolling_summary(views) -> dict | None:
                       "median scene depth (docs/dense.md)"}
 
 
-def _median_stack(maps: list[np.ndarray]) -> np.ndarray:
-    """Per-pixel median of the finite values of several depth maps (NaN where none)."""
-    if len(maps) == 1:
-        return maps[0]
-    st = np.sort(np.stack(maps), axis=0)  # NaN sorts last
-    n = np.isfinite(st).sum(axis=0)
-    lo = np.take_along_axis(st, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
-    hi = np.take_along_axis(st, np.maximum(n // 2, 0)[None], axis=0)[0]
-    out = 0.5 * (lo + np.where(n > 0, hi, np.nan))
-    out[n == 0] = np.nan
-    return out.astype(np.float32)
-
-
 def run_dense(out_dir, options: DenseOptions | dict | None = None, progress: ProgressFn | None = None) -> dict:
     """Dense point cloud, DSM and orthophoto of the oriented images of ``out_dir``; returns the summary.
     ``options`` may also be a dict (:meth:`DenseOptions.from_dict`)."""
@@ -149,7 +136,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     from ..dense.pair_selection import select_sources
     from ..dense.point_cloud_filter import surface_outliers, voxel_thin
     from ..dense.point_cloud_io import write_point_cloud
-    from ..dense.rectified_stereo import pair_depth_map
+    from ..dense.rectified_stereo import median_depth_map, pair_depth_map
     from ..dense.sparse_prior import build_sparse_prior
     from ..photo.oriented_images import read_oriented_images
 
@@ -237,7 +224,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
             infos.append(info)
             if dm is not None:
                 maps.append(dm)
-        depth = _median_stack(maps) if maps else None
+        depth = median_depth_map(maps) if maps else None
         return i, depth, infos, time.perf_counter() - t0
 
     report("depth maps", 0, len(views))

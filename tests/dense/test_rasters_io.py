@@ -14,7 +14,7 @@ from georef_core.dense.dsm_raster import (MASK_FILLED, MASK_MEASURED, MASK_NODAT
 from georef_core.dense.point_cloud_filter import surface_outliers
 from georef_core.dense.point_cloud_io import read_point_cloud, write_point_cloud
 from georef_core.errors import InputFileError
-from georef_core.steps.dense import _median_stack
+from georef_core.dense.rectified_stereo import median_depth_map
 
 
 def test_bin_median_matches_brute_force():
@@ -66,13 +66,13 @@ def test_surface_outliers():
     assert bad[200:].mean() < 0.002
 
 
-def test_median_stack():
+def testmedian_depth_map():
     a = np.array([[1.0, np.nan, np.nan, 4.0]], np.float32)
     b = np.array([[3.0, 2.0, np.nan, 6.0]], np.float32)
     c = np.array([[2.0, np.nan, np.nan, 100.0]], np.float32)
-    m = _median_stack([a, b, c])
+    m = median_depth_map([a, b, c])
     assert m[0, 0] == 2.0 and m[0, 1] == 2.0 and np.isnan(m[0, 2]) and m[0, 3] == 6.0
-    assert _median_stack([a, b])[0, 0] == 2.0
+    assert median_depth_map([a, b])[0, 0] == 2.0
 
 
 def test_cog_writer_and_compare(tmp_path):
