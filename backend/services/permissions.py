@@ -83,16 +83,22 @@ def require_run_with_outputs(ctx: Ctx, run_id: str, paths: tuple[str, ...],
     endpoints that GIS systems poll need one round trip to the database instead of two."""
     if ctx.principal is None:
         raise Unauthorized("authentication required")
-    # the run's JSON columns are not read by the result endpoints (its inputs list every image of the
-    # survey: tens of kilobytes to parse on each poll); they load on first access where needed
+    run, have, outputs = _run_role_and_outputs(ctx, run_id, paths)
+    _check(ctx, have, role, "run")
+    return run, outputs
+
+
+def _run_role_and_outputs(ctx: Ctx, run_id: str, paths: tuple[str, ...]):
+    """(run, the caller's role on its site, its outputs among `paths` by path) in one query; (None, None, {})
+    when the run does not exist. The run's JSON columns are not read (its inputs list every image of the
+    survey: tens of kilobytes to parse on each poll of a result or tile); they load on first access."""
     rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
                           .options(defer(Run.inputs), defer(Run.settings), defer(Run.changes))
                           .outerjoin(SiteRole, _caller_role_on(ctx, Run.site_id))
                           .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
                           .where(Run.id == run_id)).all() if run_id else []
     run, have = (rows[0][0], rows[0][1]) if rows else (None, None)
-    _check(ctx, have, role, "run")
-    return run, {r[2].path: r[2] for r in rows if r[2] is not None}
+    return run, have, {r[2].path: r[2] for r in rows if r[2] is not None}
 
 
 def require_stockpile(ctx: Ctx, stockpile_id: str, role: str = "viewer") -> Stockpile:
@@ -132,12 +138,7 @@ def require_run_for_tiles(ctx: Ctx, run_id: str, paths: tuple[str, ...]) -> tupl
     p = ctx.principal
     if not (p.has_scope("read") or p.has_scope("tiles")):
         raise Forbidden("this API token lacks the 'read' or 'tiles' scope")
-    rows = ctx.db.execute(select(Run, SiteRole.role, RunOutput)
-                          .options(defer(Run.inputs), defer(Run.settings), defer(Run.changes))
-                          .outerjoin(SiteRole, _caller_role_on(ctx, Run.site_id))
-                          .outerjoin(RunOutput, and_(RunOutput.run_id == Run.id, RunOutput.path.in_(paths)))
-                          .where(Run.id == run_id)).all() if run_id else []
-    run, have = (rows[0][0], rows[0][1]) if rows else (None, None)
+    run, have, outputs = _run_role_and_outputs(ctx, run_id, paths)
     if have is None:
         raise NotFound("run not found")
-    return run, {r[2].path: r[2] for r in rows if r[2] is not None}
+    return run, outputs
