@@ -286,7 +286,6 @@ class _Liveness:
 
 def execute_step(run_id: str, step: str) -> str:
     """Claim and run one step; returns what happened. Raises only transient errors (to be retried)."""
-    from georef_core.errors import GeorefError, InputFileError, StepCancelled
 
     settings, db, storage = _env()
     claim = jobs.claim_step(db, run_id, step, worker_id())
@@ -364,32 +363,16 @@ def execute_step(run_id: str, step: str) -> str:
     except LostClaim:
         log.warning("run %s step %s: taken over by another worker; result discarded", run_id, step)
         return "lost"
-    except StepCancelled as exc:
-        ok, msgs = jobs.fail_step(db, claim, str(exc) or "cancelled", cancelled=True)
-        _send(settings, db, storage, msgs)
-        return "cancelled"
     except TRANSIENT:
         raise
-    except InputFileError as exc:
-        reason = f"{Path(exc.path).name if exc.path else ''}: {exc.problem}" if exc.path else str(exc)
-        ok, msgs = jobs.fail_step(db, claim, _relative(str(exc), run_dir) or reason)
-        _send(settings, db, storage, msgs)
-        return "failed"
-    except GeorefError as exc:
-        ok, msgs = jobs.fail_step(db, claim, _relative(str(exc), run_dir))
-        _send(settings, db, storage, msgs)
-        return "failed"
-    except Exception as exc:   # a bug: the run records it with the traceback in its log
-        jobs.log(db, run_id, "internal error:\n" + _relative(traceback.format_exc(limit=8), run_dir), step, "error")
-        ok, msgs = jobs.fail_step(db, claim, f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})")
-        _send(settings, db, storage, msgs)
-        return "failed"
+    except Exception as exc:
+        return _record_failure(settings, db, storage, run_id, step, run_dir, exc,
+                               lambda reason, cancelled: jobs.fail_step(db, claim, reason, cancelled=cancelled))
 
 
 def execute_part(run_id: str, step: str, index: int) -> str:
     """Claim and run one part of a split step in a folder of its own (two parts on one machine never share
     one); record its files and, for the last part, queue the merge. Raises only transient errors."""
-    from georef_core.errors import GeorefError, InputFileError, StepCancelled
     from georef_core.steps.contract import part_prefix
 
     settings, db, storage = _env()
@@ -418,21 +401,33 @@ def execute_part(run_id: str, step: str, index: int) -> str:
     except LostClaim:
         log.warning("run %s step %s part %s: no longer ours; result discarded", run_id, step, index)
         return "lost"
-    except StepCancelled as exc:
-        ok, msgs = jobs.fail_part(db, pc, str(exc) or "cancelled", cancelled=True)
-        _send(settings, db, storage, msgs)
-        return "cancelled"
     except TRANSIENT:
         raise
-    except (InputFileError, GeorefError) as exc:
-        ok, msgs = jobs.fail_part(db, pc, _relative(str(exc), run_dir))
+    except Exception as exc:
+        return _record_failure(settings, db, storage, run_id, step, run_dir, exc,
+                               lambda reason, cancelled: jobs.fail_part(db, pc, reason, cancelled=cancelled))
+
+
+def _record_failure(settings, db, storage, run_id: str, step: str, run_dir: Path, exc: Exception, fail) -> str:
+    """What a step or a part that raised records (``fail(reason, cancelled) -> (recorded, messages)``, called
+    inside the except block): a cancellation; the project's own error, its files named relative to the run
+    folder; anything else as an internal error with its traceback in the run's log. Returns the outcome."""
+    from georef_core.errors import GeorefError, InputFileError, StepCancelled
+
+    if isinstance(exc, StepCancelled):
+        ok, msgs = fail(str(exc) or "cancelled", True)
         _send(settings, db, storage, msgs)
-        return "failed"
-    except Exception as exc:   # a bug: the run records it with the traceback in its log
+        return "cancelled"
+    if isinstance(exc, GeorefError):
+        reason = _relative(str(exc), run_dir)
+        if not reason and isinstance(exc, InputFileError) and exc.path:
+            reason = f"{Path(exc.path).name}: {exc.problem}"
+    else:   # a bug: the run records it with the traceback in its log
         jobs.log(db, run_id, "internal error:\n" + _relative(traceback.format_exc(limit=8), run_dir), step, "error")
-        ok, msgs = jobs.fail_part(db, pc, f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})")
-        _send(settings, db, storage, msgs)
-        return "failed"
+        reason = f"internal error ({type(exc).__name__}: {_relative(str(exc), run_dir)})"
+    ok, msgs = fail(reason, False)
+    _send(settings, db, storage, msgs)
+    return "failed"
 
 
 def _relative(text: str, run_dir: Path) -> str:

@@ -109,3 +109,34 @@ def test_parts_in_the_embedded_shape(platform, tmp_path, toysplit_registered):
     assert step["summary"]["parts"] == 2 and step["summary"]["processes"] == 1
     merged = json.loads(api.get(f"/api/v1/runs/{run['id']}/results/files/toysplit/result.json").text)
     assert merged == _local_result(tmp_path, 2)
+
+
+def test_a_step_or_part_failure_is_recorded_alike(tmp_path, monkeypatch):
+    """worker.tasks._record_failure, shared by steps and parts: a cancellation, the project's error with its
+    file named relative to the run folder, anything else as an internal error with its traceback logged."""
+    from georef_core.errors import InputFileError, ProcessingError, StepCancelled
+    from worker import tasks
+
+    run_dir = tmp_path / "runs" / "r1"
+    logged, recorded = [], []
+    monkeypatch.setattr(tasks.jobs, "log", lambda db, run_id, message, step, level: logged.append((level, message)))
+
+    def fail(reason, cancelled):
+        recorded.append((reason, cancelled))
+        return True, []
+
+    cases = [StepCancelled("run cancelled during dense"),
+             InputFileError(run_dir / "survey" / "rover" / "f.obs", "no epochs"),
+             ProcessingError("no image pair overlaps"), KeyError(str(run_dir / "out" / "x"))]
+    outcomes = []
+    for exc in cases:
+        try:
+            raise exc
+        except Exception as e:   # noqa: BLE001 - the worker's own catch-all
+            outcomes.append(tasks._record_failure(None, None, None, "r1", "dense", run_dir, e, fail))
+    assert outcomes == ["cancelled", "failed", "failed", "failed"]
+    assert recorded[0] == ("run cancelled during dense", True)
+    assert recorded[1] == ("rover/f.obs: no epochs", False)
+    assert recorded[2] == ("no image pair overlaps", False)
+    assert recorded[3] == ("internal error (KeyError: 'x')", False)
+    assert len(logged) == 1 and logged[0][0] == "error" and "Traceback" in logged[0][1]
