@@ -13,7 +13,9 @@ import sys
 
 import pytest
 
-from georef_core.steps.contract import OptionError, get_spec, load_plugins, unregister
+from georef_core.steps.contract import OptionError, get_spec
+
+from .plugin_registration import plugin_registered
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PLUGIN = "tests.steps.toy_step"
@@ -101,19 +103,8 @@ def test_toy_step_in_the_cli(tmp_path):
 
 @pytest.fixture
 def toy_registered(monkeypatch):
-    from backend.services import steps_catalog
-
-    monkeypatch.setenv("GEOREF_STEP_PLUGINS", PLUGIN)
-    load_plugins()
-    steps_catalog.refresh()
-    yield
-    unregister("toy")
-    from georef_core.steps import contract
-
-    contract._PLUGINS_LOADED.discard(PLUGIN)
-    sys.modules.pop(PLUGIN, None)
-    monkeypatch.delenv("GEOREF_STEP_PLUGINS")
-    steps_catalog.refresh()
+    with plugin_registered(monkeypatch, PLUGIN, "toy"):
+        yield
 
 
 def test_toy_step_through_the_api_and_a_real_worker(tmp_path, toy_registered):

@@ -7,31 +7,21 @@ step and the run, naming the part; and in the embedded shape (SQLite) with one w
 from __future__ import annotations
 
 import json
-import sys
 
 import pytest
 
-from georef_core.steps.contract import Workspace, get_spec, load_plugins, run_split, unregister
+from georef_core.steps.contract import Workspace, get_spec, run_split
 
 from ..backend.platform_helpers import Api, add_user, start_worker, upload_bytes, wait_run
+from ..steps.plugin_registration import plugin_registered
 
 PLUGIN = "tests.steps.toy_split_step"
 
 
 @pytest.fixture
 def toysplit_registered(monkeypatch):
-    from backend.services import steps_catalog
-    from georef_core.steps import contract
-
-    monkeypatch.setenv("GEOREF_STEP_PLUGINS", PLUGIN)
-    load_plugins()
-    steps_catalog.refresh()
-    yield
-    unregister("toysplit")
-    contract._PLUGINS_LOADED.discard(PLUGIN)
-    sys.modules.pop(PLUGIN, None)
-    monkeypatch.delenv("GEOREF_STEP_PLUGINS")
-    steps_catalog.refresh()
+    with plugin_registered(monkeypatch, PLUGIN, "toysplit"):
+        yield
 
 
 FILES = {"survey.json": b'{"project_crs": "EPSG:32631"}', "gcp/points.csv": b"name,x,y,z\nA,1,2,3\n",
