@@ -94,7 +94,9 @@ def read_design_file(path: Path, filename: str, surface_name: str | None, site_c
 
 def validate_area(area: dict, extent: list | None) -> dict:
     """A GeoJSON Polygon or MultiPolygon in the site CRS (metres), valid, with area, overlapping the design."""
-    from shapely.geometry import box, shape
+    from shapely.geometry import box
+
+    from .stockpiles import polygon_geometry
 
     if not isinstance(area, dict) or area.get("type") not in ("Polygon", "MultiPolygon"):
         raise Unprocessable("area: a GeoJSON Polygon or MultiPolygon (coordinates in the site CRS, metres) expected")
@@ -102,20 +104,7 @@ def validate_area(area: dict, extent: list | None) -> dict:
     rings = coords if area["type"] == "Polygon" else [r for p in (coords or []) if isinstance(p, list) for r in p]
     if not isinstance(rings, list) or not rings or not all(isinstance(r, list) for r in rings):
         raise Unprocessable("area: coordinates must be rings (lists of [x, y] positions)")
-    n = sum(len(r) for r in rings)
-    if n > MAX_AREA_VERTICES:
-        raise Unprocessable(f"area: {n} vertices; at most {MAX_AREA_VERTICES} are accepted: simplify the outline",
-                            slug="too-many-vertices")
-    if not all(isinstance(pt, list) and 2 <= len(pt) <= 3 and all(
-            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in pt)
-            for r in rings for pt in r):
-        raise Unprocessable("area: every position must be [x, y] or [x, y, z] finite numbers")
-    try:
-        geom = shape(area)
-    except Exception as exc:   # shapely raises several types on malformed coordinates
-        raise Unprocessable(f"area: malformed polygon ({exc})") from None
-    if geom.is_empty or not geom.is_valid or geom.area <= 0:
-        raise Unprocessable("area: the polygon is empty, self-intersecting or has no area")
+    geom = polygon_geometry(area, rings, "area", MAX_AREA_VERTICES)
     if extent:
         ext = box(*extent)
         if not geom.intersects(ext):

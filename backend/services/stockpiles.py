@@ -21,9 +21,30 @@ MAX_OUTLINE_VERTICES = 10_000     # a surveyed stockpile toe has tens to hundred
 MAX_OUTLINE_RINGS = 100
 
 
-def validate_outline(outline: dict) -> dict:
+def polygon_geometry(polygon: dict, rings: list, field: str, max_vertices: int, simplify_hint: str = ""):
+    """The shapely geometry of a GeoJSON (Multi)Polygon whose ``rings`` are lists: at most ``max_vertices``
+    positions, each [x, y] or [x, y, z] finite numbers, valid and with an area; 422 naming ``field`` otherwise
+    (bounded work before any geometry is built: docs/security.md)."""
     from shapely.geometry import shape
 
+    n = sum(len(r) for r in rings)
+    if n > max_vertices:
+        raise Unprocessable(f"{field}: {n} vertices; at most {max_vertices} are accepted: simplify the "
+                            f"outline{simplify_hint}", slug="too-many-vertices")
+    if not all(isinstance(pt, list) and 2 <= len(pt) <= 3 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in pt)
+            for r in rings for pt in r):
+        raise Unprocessable(f"{field}: every position must be [x, y] or [x, y, z] finite numbers")
+    try:
+        geom = shape(polygon)
+    except Exception as exc:   # shapely raises several types on malformed coordinates
+        raise Unprocessable(f"{field}: malformed polygon ({exc})") from None
+    if geom.is_empty or not geom.is_valid or geom.area <= 0:
+        raise Unprocessable(f"{field}: the polygon is empty, self-intersecting or has no area")
+    return geom
+
+
+def validate_outline(outline: dict) -> dict:
     if not isinstance(outline, dict) or outline.get("type") != "Polygon":
         raise Unprocessable("outline: a GeoJSON Polygon (coordinates in the site CRS, metres) expected")
     rings = outline.get("coordinates")
@@ -32,20 +53,7 @@ def validate_outline(outline: dict) -> dict:
     if len(rings) > MAX_OUTLINE_RINGS:
         raise Unprocessable(f"outline: {len(rings)} rings; at most {MAX_OUTLINE_RINGS} (the outer ring and its "
                             "holes) are accepted", slug="too-many-vertices")
-    n = sum(len(r) for r in rings)
-    if n > MAX_OUTLINE_VERTICES:
-        raise Unprocessable(f"outline: {n} vertices; at most {MAX_OUTLINE_VERTICES} are accepted: simplify the "
-                            "outline (a stockpile toe needs far fewer)", slug="too-many-vertices")
-    if not all(isinstance(pt, list) and 2 <= len(pt) <= 3 and all(
-            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in pt)
-            for r in rings for pt in r):
-        raise Unprocessable("outline: every position must be [x, y] or [x, y, z] finite numbers")
-    try:
-        geom = shape(outline)
-    except Exception as exc:   # shapely raises several types on malformed coordinates
-        raise Unprocessable(f"outline: malformed polygon ({exc})") from None
-    if geom.is_empty or not geom.is_valid or geom.area <= 0:
-        raise Unprocessable("outline: the polygon is empty, self-intersecting or has no area")
+    geom = polygon_geometry(outline, rings, "outline", MAX_OUTLINE_VERTICES, " (a stockpile toe needs far fewer)")
     if geom.area > 1e8:
         raise Unprocessable(f"outline: area {geom.area:.0f} m^2 is implausible for a stockpile (site CRS metres?)")
     return {"type": "Polygon", "coordinates": [[[float(c) for c in pt[:3]] for pt in ring]
