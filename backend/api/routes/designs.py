@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
-from ...core.problems import PayloadTooLarge, Unprocessable
+from ...core.problems import Unprocessable
 from ...schemas.designs import DesignOut, DesignPatch
 from ...services import designs
 from ..deps import CtxDep
+from ..request_body import body_in_temp_file
 from ..responses import blob_response, json_response
 
 router = APIRouter(tags=["design"])
@@ -42,27 +41,14 @@ async def put_design_file(site_id: str, ctx: CtxDep, request: Request,
                           if_match: Annotated[str | None, Header()] = None):
     await run_in_threadpool(_check_then_end_transaction, ctx, site_id)
     limit = ctx.settings.max_chunk_bytes
-    tmp_dir = ctx.settings.resolved_work_dir() / "tmp"
-    tmp_dir.mkdir(parents=True, exist_ok=True)
     suffix = Path(filename.replace("\\", "/").rsplit("/", 1)[-1]).suffix.lower()[:10]
-    fd, tmp = tempfile.mkstemp(prefix="design-", suffix=suffix if suffix.isascii() else "", dir=tmp_dir)
-    try:
-        received = 0
-        with os.fdopen(fd, "wb") as f:
-            async for block in request.stream():
-                received += len(block)
-                if received > limit:
-                    raise PayloadTooLarge(f"design file longer than {limit} bytes")
-                f.write(block)
+    async with body_in_temp_file(request, ctx.settings.resolved_work_dir(), "design-", limit,
+                                 f"design file longer than {limit} bytes",
+                                 suffix if suffix.isascii() else "") as (tmp, received):
         if received == 0:
             raise Unprocessable(f"{filename}: empty body; the design file's bytes are expected")
-        d = await run_in_threadpool(designs.upload_design, ctx, site_id, filename, Path(tmp), surface_name, if_match)
+        d = await run_in_threadpool(designs.upload_design, ctx, site_id, filename, tmp, surface_name, if_match)
         return _out(request, d)
-    finally:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
 
 
 @router.get("/sites/{site_id}/design", response_model=DesignOut, summary="The site's design surface")

@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-
 from fastapi import APIRouter, Header, Request, Response
 from starlette.concurrency import run_in_threadpool
 
-from ...core.problems import PayloadTooLarge, Unprocessable
+from ...core.problems import Unprocessable
 from ...schemas.surveys import UploadIn, UploadOut
 from ...services import uploads
 from ..deps import CtxDep
+from ..request_body import body_in_temp_file
 from ..responses import json_response
 
 router = APIRouter(tags=["uploads"])
@@ -57,25 +54,11 @@ async def put_chunk(upload_id: str, ctx: CtxDep, request: Request,
             pass
         return json_response(request, _out(ctx, done))
     limit = end - start
-    tmp_dir = ctx.settings.resolved_work_dir() / "tmp"
-    tmp_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="chunk-", dir=tmp_dir)
-    try:
-        received = 0
-        with os.fdopen(fd, "wb") as f:
-            async for block in request.stream():
-                received += len(block)
-                if received > limit:
-                    raise PayloadTooLarge(f"body longer than the {limit} bytes announced by Content-Range")
-                f.write(block)
+    async with body_in_temp_file(request, ctx.settings.resolved_work_dir(), "chunk-", limit,
+                                 f"body longer than the {limit} bytes announced by Content-Range") as (tmp, received):
         if received == 0 and limit > 0:
             raise Unprocessable("empty body; the chunk's bytes are expected")
-        up = await run_in_threadpool(uploads.store_chunk, ctx, upload_id, start, end, Path(tmp))
-    finally:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+        up = await run_in_threadpool(uploads.store_chunk, ctx, upload_id, start, end, tmp)
     return json_response(request, _out(ctx, up))
 
 
