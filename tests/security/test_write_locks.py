@@ -143,6 +143,9 @@ def run_with_dsm(world, tmp_path_factory):
     from backend.storage import storage_for
 
     p = world["p"]
+    # a run needs a survey with a file: this fixture does not rely on another test having uploaded one
+    # (pytest-xdist may run that test in another process)
+    assert upload_bytes(world["a"], world["survey"], "points.csv", POINTS, kind="points").status_code == 200
     r = world["a"].post(f"/api/v1/surveys/{world['survey']}/runs", json={"steps": ["gnss"]})
     assert r.status_code == 201, r.text
     run_id = r.json()["id"]
