@@ -34,7 +34,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-image-size", type=int, default=1600)
     args = ap.parse_args(argv)
 
-    from georef_core.cli.main import main as georef
+    from simulated_surveys import simulated_survey
     from georef_core.dense.dsm_compare import compare_dsm
     from georef_core.dense.ortho_check import read_targets, target_offsets
     from georef_core.photo.oriented_images import oriented_images_from_simulator_truth
@@ -42,14 +42,11 @@ def main(argv=None) -> int:
 
     survey = args.survey
     if survey is None:
-        survey = args.work / f"survey_{args.images}_seed{args.seed}"
-        if not (survey / "truth" / "dsm.tif").is_file():
-            t0 = time.perf_counter()
-            rc = georef(["simulate", str(survey), "--images", str(args.images), "--seed", str(args.seed), "--no-gnss",
-                         "--quiet"])
-            if rc:
-                return rc
-            print(f"simulated in {time.perf_counter() - t0:.1f} s")
+        survey, dt = simulated_survey(args.work, args.images, args.seed)
+        if survey is None:
+            return 2
+        if dt is not None:
+            print(f"simulated in {dt:.1f} s")
     run = args.work / "run"
     oriented_images_from_simulator_truth(survey).write(run / "oriented_images.json")
 

@@ -65,21 +65,17 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/georef_scale_dense"))
     args = ap.parse_args(argv)
 
-    from georef_core.cli.main import main as georef
+    from simulated_surveys import simulated_survey
     from georef_core.photo.oriented_images import oriented_images_from_simulator_truth
     from georef_core.steps.contract import Workspace
     from georef_core.steps.dense_tiles import merge, plan
 
     survey = args.survey
     if survey is None:
-        survey = args.work / f"survey_{args.images}_seed{args.seed}"
-        if not (survey / "truth" / "dsm.tif").is_file():
-            t0 = time.perf_counter()
-            rc = georef(["simulate", str(survey), "--images", str(args.images), "--seed", str(args.seed), "--no-gnss",
-                         "--quiet"])
-            if rc:
-                return rc
-            dt = time.perf_counter() - t0
+        survey, dt = simulated_survey(args.work, args.images, args.seed)
+        if survey is None:
+            return 2
+        if dt is not None:
             print(f"simulated {args.images} images in {dt:.1f} s = {dt / args.images:.2f} s per image "
                   f"(1000 images: ~{1000 * dt / args.images / 60:.0f} min)")
     n_img = len(json.loads((survey / "truth" / "camera_poses.json").read_text()).get("images") or []) or args.images
