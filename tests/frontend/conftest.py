@@ -72,3 +72,4 @@ def page(browser, ui_platform):
     pg.errors = errors
     yield pg
     ctx.close()
+

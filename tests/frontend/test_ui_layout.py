@@ -10,10 +10,11 @@ headless Chromium on the built UI with the API answered by the test (no platform
 from __future__ import annotations
 
 import json
-import mimetypes
 import re
 
 import pytest
+
+from .ui_helpers import fulfil_with_built_file
 
 ORIGIN = "http://georef.test"
 SITE, SURVEY, RUN = "site-1", "survey-1", "run-1"
@@ -82,11 +83,7 @@ def ui(browser, frontend_dist):
             route.fulfill(status=status, body=json.dumps(body),
                           content_type="application/json" if status < 400 else "application/problem+json")
             return
-        f = frontend_dist / path.lstrip("/")
-        if path == "/" or not f.is_file():
-            f = frontend_dist / "index.html"
-        route.fulfill(status=200, body=f.read_bytes(),
-                      content_type=mimetypes.guess_type(f.name)[0] or "application/octet-stream")
+        fulfil_with_built_file(route, frontend_dist, path)
 
     page.route(f"{ORIGIN}/**", handle)
     page.errors = errors

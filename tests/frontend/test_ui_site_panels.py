@@ -13,14 +13,13 @@ to georef_core.deliverables.inventory by test_inventory_fixture.py).
 from __future__ import annotations
 
 import json
-import mimetypes
 import re
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 import pytest
 
-from .ui_helpers import horizontal_overflow, unlabelled_controls
+from .ui_helpers import fulfil_with_built_file, horizontal_overflow, unlabelled_controls
 from .test_ui_layout import ME, ORIGIN, RUN, RUN_OBJ, SITE, SITE_OBJ, SURVEY, SURVEY_OBJ, _page
 
 INVENTORY = json.loads((Path(__file__).resolve().parents[2] / "frontend" / "tests" / "fixtures" /
@@ -113,11 +112,7 @@ def ui(browser, frontend_dist):
             route.fulfill(status=status, body=json.dumps(body), headers=headers,
                           content_type="application/json" if status < 400 else "application/problem+json")
             return
-        f = frontend_dist / path.lstrip("/")
-        if path == "/" or not f.is_file():
-            f = frontend_dist / "index.html"
-        route.fulfill(status=200, body=f.read_bytes(),
-                      content_type=mimetypes.guess_type(f.name)[0] or "application/octet-stream")
+        fulfil_with_built_file(route, frontend_dist, path)
 
     page.route(f"{ORIGIN}/**", handle)
     page.errors = errors

@@ -82,3 +82,14 @@ def world_to_screen(page, x: float, y: float) -> tuple[float, float]:
     box = m.bounding_box()
     cx, cy, res = (float(v) for v in m.get_attribute("data-view").split(","))
     return box["x"] + box["width"] / 2 + (x - cx) / res, box["y"] + box["height"] / 2 - (y - cy) / res
+
+def fulfil_with_built_file(route, frontend_dist: Path, path: str) -> None:
+    """Answer a browser request for ``path`` with the built UI's file (index.html for the app's own routes),
+    for the tests that stand in for the API with their own answers."""
+    import mimetypes
+
+    f = frontend_dist / path.lstrip("/")
+    if path == "/" or not f.is_file():
+        f = frontend_dist / "index.html"
+    route.fulfill(status=200, body=f.read_bytes(),
+                  content_type=mimetypes.guess_type(f.name)[0] or "application/octet-stream")
