@@ -72,4 +72,3 @@ def page(browser, ui_platform):
     pg.errors = errors
     yield pg
     ctx.close()
-
