@@ -8,6 +8,8 @@ import json
 
 import pytest
 
+from ..once_per_session import once_per_session
+
 SEED = 1
 
 
@@ -23,7 +25,7 @@ def rendering_available() -> bool:
 
 def simulate_small_survey(tmp_path_factory, name: str, readout_s: float = 0.0):
     """The small simulated survey (seed SEED, no GNSS files), its camera with a rolling shutter of
-    ``readout_s`` if given."""
+    ``readout_s`` if given; rendered once per test session (tests only read it)."""
     if not rendering_available():
         pytest.skip("open3d / Pillow / piexif / rasterio / opencv / laspy missing")
     from georef_core.sim import SimulationOptions, simulate_site
@@ -32,7 +34,8 @@ def simulate_small_survey(tmp_path_factory, name: str, readout_s: float = 0.0):
     options.gnss = None
     if readout_s:
         options.camera = options.camera.rolling(readout_s)
-    return simulate_site(tmp_path_factory.mktemp(name), seed=SEED, options=options, verbose=False)
+    return once_per_session(tmp_path_factory, name,
+                            lambda folder: simulate_site(folder, seed=SEED, options=options, verbose=False))
 
 
 @pytest.fixture(scope="session")
@@ -46,11 +49,13 @@ def dense_run(dense_sim, tmp_path_factory):
     from georef_core.photo.oriented_images import oriented_images_from_simulator_truth
     from georef_core.steps.dense import DenseOptions, run_dense
 
-    out = tmp_path_factory.mktemp("dense_run")
-    oriented_images_from_simulator_truth(dense_sim.out_dir).write(out / "oriented_images.json")
-    calls = []
-    summary = run_dense(out, DenseOptions(workers=2), progress=lambda s, d, t: calls.append((s, d, t)))
-    return out, summary, calls
+    def make(out):
+        oriented_images_from_simulator_truth(dense_sim.out_dir).write(out / "oriented_images.json")
+        calls = []
+        summary = run_dense(out, DenseOptions(workers=2), progress=lambda s, d, t: calls.append((s, d, t)))
+        return out, summary, calls
+
+    return once_per_session(tmp_path_factory, "dense_run", make)
 
 
 @pytest.fixture(scope="session")

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import pytest
 
+from ..once_per_session import once_per_session
+
 from ..shared_images import shared_image_set
 
 SIM_SEED = 7
@@ -29,10 +31,12 @@ def caliterra_images() -> Path:
 def caliterra_sfm(caliterra_images, tmp_path_factory):
     from georef_core.photo.sfm import SfmOptions, run_sfm
 
-    stages = []
-    result = run_sfm(caliterra_images, tmp_path_factory.mktemp("cal_sfm"), SfmOptions(),
-                     progress=lambda s, d, t: stages.append((s, d, t)))
-    return result, stages
+    def make(folder):
+        stages = []
+        result = run_sfm(caliterra_images, folder, SfmOptions(), progress=lambda s, d, t: stages.append((s, d, t)))
+        return result, stages
+
+    return once_per_session(tmp_path_factory, "caliterra_sfm", make)
 
 
 def _rendering_available() -> bool:
@@ -51,8 +55,9 @@ def photo_sim(tmp_path_factory):
         pytest.skip("open3d / Pillow / piexif / rasterio missing")
     from georef_core.sim import SimulationOptions, simulate_site
 
-    return simulate_site(tmp_path_factory.mktemp("photo_sim"), seed=SIM_SEED, options=SimulationOptions.small(),
-                         verbose=False)
+    # the same survey as tests/sim's small_sim (seed 7, small options): rendered once for both
+    return once_per_session(tmp_path_factory, f"small_sim_seed{SIM_SEED}", lambda folder: simulate_site(
+        folder, seed=SIM_SEED, options=SimulationOptions.small(), verbose=False))
 
 
 @pytest.fixture(scope="session")

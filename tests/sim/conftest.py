@@ -6,6 +6,8 @@ import importlib.util
 
 import pytest
 
+from ..once_per_session import once_per_session
+
 SEED = 7
 
 
@@ -32,5 +34,6 @@ def small_sim(tmp_path_factory):
         pytest.skip("open3d / Pillow / piexif / rasterio missing")
     from georef_core.sim import SimulationOptions, simulate_site
 
-    out = tmp_path_factory.mktemp("sim_small")
-    return simulate_site(out, seed=SEED, options=SimulationOptions.small(), verbose=False)
+    # the same survey as tests/photo's photo_sim (seed 7, small options): rendered once for both
+    return once_per_session(tmp_path_factory, f"small_sim_seed{SEED}", lambda folder: simulate_site(
+        folder, seed=SEED, options=SimulationOptions.small(), verbose=False))
