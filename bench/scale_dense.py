@@ -3,9 +3,11 @@ peak memory, and the speed-up of 2 (or more) worker processes over 1 running the
 
 Simulates a survey (``georef simulate --images N``: 1600 x 1200 images, default 200, seed 5; or ``--survey``),
 makes its true orientations (as bench/dense_speed.py), then for each process count P in ``--processes``
-(default 1,2): the plan in this process, the parts (one per tile) in a pool of P fresh processes
-(multiprocessing, one part per child: the same ``dense_tiles.part`` a Celery worker runs through
-worker/pipeline.run_part), the merge in this process. Prints per P: wall seconds of plan / parts / merge, the
+(default 1,2): the plan in this process, the parts in a pool of P fresh processes (multiprocessing, one part
+per child: the same ``dense_tiles.part`` a Celery worker runs through worker/pipeline.run_part) - first the
+depth parts (each image's depth maps once), then the tiles (fusion, DSM, orthophoto from those maps) - the
+merge in this process. CPU time: the children's user + system time (ru_utime + ru_stime, imports included)
+plus this process's during plan and merge; ``--one-run`` gives the same for the one-run step, and the ratio. Prints per P: wall seconds of plan / parts / merge, the
 speed-up against P = 1 in the same script, the parallel fraction (Amdahl) from it and the projected 4-worker
 speed-up; the stage times per image (summed over the tiles: the tiles' margins make some images work twice);
 the peak RSS of the largest part (VmHWM of the children, ru_maxrss) and of this process (plan + merge).
@@ -30,7 +32,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _run_part(args) -> tuple[int, float, int]:
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _run_part(args) -> tuple[int, float, int, float]:
     out_dir, options, part = args
     from georef_core.steps.contract import Workspace
     from georef_core.steps.dense_tiles import part as run_part
@@ -39,16 +46,17 @@ def _run_part(args) -> tuple[int, float, int]:
     ws = Workspace(out_dir, out_dir)
     ws.part_dir("dense", part["index"]).mkdir(parents=True, exist_ok=True)
     run_part(ws, options, part, None, {})
-    return part["index"], time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return (part["index"], time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+            _cpu_s())
 
 
-def _one_run(args) -> tuple[float, int]:
+def _one_run(args) -> tuple[float, int, float]:
     out_dir, options = args
     from georef_core.steps.dense import run_dense
 
     t0 = time.perf_counter()
     run_dense(out_dir, dict(options, tiles=1))
-    return time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, _cpu_s()
 
 
 def main(argv=None) -> int:
@@ -87,42 +95,59 @@ def main(argv=None) -> int:
         shutil.rmtree(run, ignore_errors=True)
         oriented_images_from_simulator_truth(survey).write(run / "oriented_images.json")
         ws = Workspace(run, run)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _cpu_s()
         parts = [dict(p, index=k) for k, p in enumerate(plan(ws, options, {}))]
-        t_plan = time.perf_counter() - t0
+        t_plan, cpu_main = time.perf_counter() - t0, _cpu_s() - c0
         if len(parts) < 2:
             print("one tile: set --tiles 2 or more")
             return 2
         t1 = time.perf_counter()
         ctx = mp.get_context("spawn")
-        with ctx.Pool(P, maxtasksperchild=1) as pool:
-            done = pool.map(_run_part, [(run, options, p) for p in parts], chunksize=1)
+        done = []
+        # phase 1 (depth parts), then phase 2 (the tiles read the depth maps: their "after")
+        for phase in ("depth", "fuse"):
+            with ctx.Pool(P, maxtasksperchild=1) as pool:
+                done += [d + (phase,) for d in pool.map(_run_part, [(run, options, p) for p in parts
+                                                                     if p.get("phase", "fuse") == phase],
+                                                        chunksize=1)]
         t_parts = time.perf_counter() - t1
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), _cpu_s()
         summary = merge(ws, options, parts, None, {})
-        t_merge = time.perf_counter() - t2
+        t_merge, cpu_main = time.perf_counter() - t2, cpu_main + _cpu_s() - c2
         wall = time.perf_counter() - t0
         peak_child_mb = max(d[2] for d in done) / 1024
+        peak = {ph: max((d[2] / 1024 for d in done if d[4] == ph), default=0.0) for ph in ("depth", "fuse")}
         results[P] = {"wall": wall, "plan": t_plan, "parts": t_parts, "merge": t_merge, "summary": summary,
-                      "peak_part_mb": peak_child_mb,
+                      "peak_part_mb": peak_child_mb, "peak_depth_part_mb": peak["depth"],
+                      "peak_tile_part_mb": peak["fuse"],
                       "peak_main_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                      "cpu_s": cpu_main + sum(d[3] for d in done),
+                      "cpu_depth_s": sum(d[3] for d in done if d[4] == "depth"),
+                      "cpu_tiles_s": sum(d[3] for d in done if d[4] == "fuse"), "cpu_plan_merge_s": cpu_main,
                       "part_s": sorted(round(d[1], 1) for d in done)}
-        print(f"\nP = {P} processes x {args.threads} thread(s), {len(parts)} tiles {summary['tiles']['shape']}, "
-              f"{n_img} images ({summary['tiles']['images_processed']} tile-images, overlap factor "
-              f"{summary['tiles']['overlap_factor']}): wall {wall:.1f} s = {wall / n_img:.2f} s per image "
-              f"(plan {t_plan:.1f}, parts {t_parts:.1f}, merge {t_merge:.1f}); part times {results[P]['part_s']}")
-        print(f"  peak RSS: largest part {peak_child_mb:.0f} MB, plan + merge process {results[P]['peak_main_mb']:.0f} "
-              f"MB; load average {os.getloadavg()[0]:.2f}")
+        tl = summary["tiles"]
+        print(f"\nP = {P} processes x {args.threads} thread(s), {len(parts)} parts ({len(tl['per_depth_part'])} depth "
+              f"parts, then {tl['count']} tiles {tl['shape']}), {n_img} images: depth maps computed "
+              f"{tl['depth_maps_computed']} (twice: {len(tl['depth_maps_computed_twice'])}); tiles fused "
+              f"{tl['images_processed']} tile-images (overlap factor {tl['overlap_factor']}): wall {wall:.1f} s = "
+              f"{wall / n_img:.2f} s per image (plan {t_plan:.1f}, parts {t_parts:.1f}, merge {t_merge:.1f}); "
+              f"part times {results[P]['part_s']}")
+        r = results[P]
+        print(f"  CPU {r['cpu_s']:.1f} s (depth parts {r['cpu_depth_s']:.1f}, tiles {r['cpu_tiles_s']:.1f}, plan + "
+              f"merge {r['cpu_plan_merge_s']:.1f})")
+        print(f"  peak RSS: largest depth part {peak['depth']:.0f} MB, largest tile {peak['fuse']:.0f} MB, plan + "
+              f"merge process {results[P]['peak_main_mb']:.0f} MB; load average {os.getloadavg()[0]:.2f}")
     if args.one_run:
         run = args.work / "run_one"
         shutil.rmtree(run, ignore_errors=True)
         oriented_images_from_simulator_truth(survey).write(run / "oriented_images.json")
         with mp.get_context("spawn").Pool(1) as pool:
-            t_one, rss_one = pool.apply(_one_run, ((run, options),))
+            t_one, rss_one, cpu_one = pool.apply(_one_run, ((run, options),))
         r0 = next(iter(results.values()))
-        print(f"\none run (tiles 1, 1 process): {t_one:.1f} s = {t_one / n_img:.2f} s per image, peak RSS "
-              f"{rss_one / 1024:.0f} MB; tiles / one run: time {r0['wall'] / t_one:.2f}, peak memory "
-              f"{r0['peak_part_mb'] / (rss_one / 1024):.2f}")
+        print(f"\none run (tiles 1, 1 process): {t_one:.1f} s = {t_one / n_img:.2f} s per image, CPU {cpu_one:.1f} s, "
+              f"peak RSS {rss_one / 1024:.0f} MB; tiles / one run: CPU {r0['cpu_s'] / cpu_one:.2f}, time "
+              f"{r0['wall'] / t_one:.2f}, peak memory {r0['peak_part_mb'] / (rss_one / 1024):.2f}")
+        r0.update(one_run_s=t_one, one_run_cpu_s=cpu_one, one_run_peak_mb=rss_one / 1024)
     base = results.get(1)
     r1 = next(iter(results.values()))
     t = r1["summary"]["timings_s"]

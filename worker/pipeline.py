@@ -49,13 +49,15 @@ def _contract_adapter(step: str) -> Callable:
 
 def plan_parts(step: str, survey_dir: Path, out_dir: Path, options: dict, run: dict) -> list[dict] | None:
     """The parts of a step that can run on several workers (its spec's Split), None for any other step."""
-    from georef_core.steps.contract import Workspace, get_spec
+    from georef_core.steps.contract import Workspace, check_part_order, get_spec
 
     spec = get_spec(step) if step != "report" else None
     if spec is None or spec.split is None:
         return None
     parts = resolve_function(spec.split.plan)(Workspace(survey_dir, out_dir), dict(options), _context(run))
-    return [dict(p) for p in parts]
+    parts = [dict(p) for p in parts]
+    check_part_order(step, parts)     # "after" names earlier parts only
+    return parts
 
 
 def run_part(step: str, survey_dir: Path, out_dir: Path, options: dict, part: dict, progress, run: dict) -> None:

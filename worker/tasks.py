@@ -158,13 +158,14 @@ def _materialise_design(storage, run: dict, run_dir: Path) -> None:
 def _own_file_wanted(path: str, step: str, part: int | None, run: dict) -> bool:
     """Whether a file the step itself recorded (a split step's plan or parts) goes into its folder: while the
     step waits for its parts or merges them (run["own_files"]: set by the caller), the plan's files, and the
-    parts' files for the merge only."""
+    parts' files for the merge only - and for a part, the files of the earlier parts it reads (its
+    descriptor's ``after``, run["part_reads"]: set by the caller)."""
     from georef_core.steps.contract import part_prefix
 
     if not run.get("own_files"):
         return False
     if path.startswith(part_prefix(step)):
-        return part is None
+        return part is None or any(path.startswith(part_prefix(step, j)) for j in run.get("part_reads") or ())
     return True
 
 
@@ -373,7 +374,7 @@ def execute_step(run_id: str, step: str) -> str:
 def execute_part(run_id: str, step: str, index: int) -> str:
     """Claim and run one part of a split step in a folder of its own (two parts on one machine never share
     one); record its files and, for the last part, queue the merge. Raises only transient errors."""
-    from georef_core.steps.contract import part_prefix
+    from georef_core.steps.contract import part_after, part_prefix
 
     settings, db, storage = _env()
     pc = jobs.claim_part(db, run_id, step, index, worker_id())
@@ -384,6 +385,7 @@ def execute_part(run_id: str, step: str, index: int) -> str:
         return f"skipped: {pc}"
     run = jobs.run_context(db, run_id)
     run["own_files"] = True              # the plan's files (materialise)
+    run["part_reads"] = part_after(pc.descriptor)   # and those of the earlier parts it reads
     run_dir = settings.resolved_work_dir() / "runs" / run_id / "parts" / f"{step}-{index:04d}"
     try:
         with _Liveness(db, pc, settings.step_lease_s, jobs.part_heartbeat, jobs.report_part_progress) as live:

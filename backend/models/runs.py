@@ -37,18 +37,12 @@ class Run(IdMixin, VersionMixin, Base):
     finished_at: Mapped[datetime | None] = mapped_column(default=None)
 
 
-class RunStep(IdMixin, Base):
-    __tablename__ = "run_steps"
-    __table_args__ = (UniqueConstraint("run_id", "name"),)
-    run_id: Mapped[str] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(32))
-    position: Mapped[int] = mapped_column(Integer)
-    state: Mapped[str] = mapped_column(String(16), default="pending", index=True)
-    force: Mapped[bool] = mapped_column(Boolean, default=False)       # do not reuse an earlier identical result
+class ClaimMixin:
+    """The columns of a unit of work that a worker claims and advances: a step (RunStep) or a part of a split
+    step (RunStepPart). The claim is atomic; its attempt number fences the heartbeats and the final write."""
+
     attempt: Mapped[int] = mapped_column(Integer, default=0)          # fencing token of the current claim
     worker: Mapped[str | None] = mapped_column(String(200), default=None)
-    input_hash: Mapped[str | None] = mapped_column(String(64), default=None)
-    reused_from_step_id: Mapped[str | None] = mapped_column(String(36), default=None)
     queued_at: Mapped[datetime | None] = mapped_column(default=None)
     started_at: Mapped[datetime | None] = mapped_column(default=None)
     heartbeat_at: Mapped[datetime | None] = mapped_column(default=None)
@@ -56,6 +50,18 @@ class RunStep(IdMixin, Base):
     progress_stage: Mapped[str] = mapped_column(String(200), default="")
     progress_done: Mapped[int] = mapped_column(Integer, default=0)
     progress_total: Mapped[int] = mapped_column(Integer, default=0)
+
+
+class RunStep(ClaimMixin, IdMixin, Base):
+    __tablename__ = "run_steps"
+    __table_args__ = (UniqueConstraint("run_id", "name"),)
+    run_id: Mapped[str] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(32))
+    position: Mapped[int] = mapped_column(Integer)
+    state: Mapped[str] = mapped_column(String(16), default="pending", index=True)
+    force: Mapped[bool] = mapped_column(Boolean, default=False)       # do not reuse an earlier identical result
+    input_hash: Mapped[str | None] = mapped_column(String(64), default=None)
+    reused_from_step_id: Mapped[str | None] = mapped_column(String(36), default=None)
     summary: Mapped[dict | None] = mapped_column(JSON, default=None)
     error: Mapped[str | None] = mapped_column(Text, default=None)
     # a step that runs as parts on several workers (contract.Split): None (one worker), "parts" (its parts
@@ -63,7 +69,7 @@ class RunStep(IdMixin, Base):
     phase: Mapped[str | None] = mapped_column(String(8), default=None)
 
 
-class RunStepPart(IdMixin, Base):
+class RunStepPart(ClaimMixin, IdMixin, Base):
     """One part of a split step (contract.Split), advanced like a step: an atomic claim whose attempt number
     fences heartbeats and the final write; its outputs are recorded with the step's name."""
 
@@ -74,16 +80,7 @@ class RunStepPart(IdMixin, Base):
     step_name: Mapped[str] = mapped_column(String(32))
     index: Mapped[int] = mapped_column(Integer)
     descriptor: Mapped[dict] = mapped_column(JSON, default=dict)     # what the plan said this part does
-    state: Mapped[str] = mapped_column(String(16), default="queued", index=True)   # queued | running | succeeded
-    attempt: Mapped[int] = mapped_column(Integer, default=0)
-    worker: Mapped[str | None] = mapped_column(String(200), default=None)
-    queued_at: Mapped[datetime | None] = mapped_column(default=None)
-    started_at: Mapped[datetime | None] = mapped_column(default=None)
-    heartbeat_at: Mapped[datetime | None] = mapped_column(default=None)
-    finished_at: Mapped[datetime | None] = mapped_column(default=None)
-    progress_stage: Mapped[str] = mapped_column(String(200), default="")
-    progress_done: Mapped[int] = mapped_column(Integer, default=0)
-    progress_total: Mapped[int] = mapped_column(Integer, default=0)
+    state: Mapped[str] = mapped_column(String(16), default="queued", index=True)   # waiting|queued|running|succeeded
 
 
 class RunOutput(IdMixin, Base):

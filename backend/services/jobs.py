@@ -9,8 +9,10 @@ transaction and sent to the broker after the commit.
 
 A step that can run as parts (contract.Split) is planned under its claim; `start_parts` records the plan's
 files and one RunStepPart per part and sets the step's phase to "parts" (the step stays "running"; its
-own heartbeat no longer matters, each part has one). Parts are claimed, fenced and reaped like steps. The
-last part to finish puts the step back in the queue with phase "merge": the next claim merges."""
+own heartbeat no longer matters, each part has one). Parts are claimed, fenced and reaped like steps. A part
+whose descriptor names ``after`` (earlier parts: a second phase, contract.Split) waits in state "waiting"
+and is queued when the last of those succeeds. The last part to finish puts the step back in the queue with
+phase "merge": the next claim merges."""
 
 from __future__ import annotations
 
@@ -18,6 +20,8 @@ from dataclasses import dataclass
 from datetime import timedelta
 
 from sqlalchemy import delete, func, or_, select, update
+
+from georef_core.steps.contract import part_after
 
 from ..db.session import Database
 from ..models import Run, RunOutput, RunStep, RunStepPart, Schedule, Survey, VolumeMeasurement
@@ -388,11 +392,12 @@ def start_parts(db: Database, claim: Claim, input_hash: str, plan_outputs: list[
         for path, sha, size in plan_outputs:
             s.add(RunOutput(run_id=claim.run_id, step_name=claim.step, path=path, sha256=sha, size=size))
         for k, d in enumerate(parts):
+            waits = bool(part_after(d))    # a second-phase part: queued when the parts it reads are done
             s.add(RunStepPart(run_step_id=claim.step_id, run_id=claim.run_id, step_name=claim.step, index=k,
-                              descriptor=d, state="queued", attempt=0, queued_at=now, progress_stage="",
-                              progress_done=0, progress_total=0))
+                              descriptor=d, state="waiting" if waits else "queued", attempt=0,
+                              queued_at=None if waits else now, progress_stage="", progress_done=0, progress_total=0))
         add_log(s, claim.run_id, f"step {claim.step} split into {len(parts)} parts", claim.step)
-        return True, [("part", claim.run_id, claim.step, k) for k in range(len(parts))]
+        return True, [("part", claim.run_id, claim.step, k) for k in range(len(parts)) if not part_after(parts[k])]
 
 
 def part_descriptors(db: Database, claim: Claim) -> list[dict]:
@@ -481,10 +486,25 @@ def finish_part(db: Database, pc: PartClaim, outputs: list[tuple[str, str, int]]
         add_log(s, pc.run_id, f"step {pc.step} part {pc.index} done on {pc.worker} ({done} of {total})", pc.step)
         if done < total:
             s.execute(update(RunStep).where(RunStep.id == pc.step_id).values(progress_done=done, heartbeat_at=now))
-            return True, []
+            return True, _release_waiting_parts(s, pc, now)
         s.execute(update(RunStep).where(RunStep.id == pc.step_id, RunStep.state == "running", RunStep.phase == "parts")
                   .values(state="queued", phase="merge", queued_at=now, progress_stage="merge", progress_done=done))
         return True, [("step", pc.run_id, pc.step)]
+
+
+def _release_waiting_parts(s, pc: PartClaim, now) -> list[tuple]:
+    """The waiting parts of the step whose ``after`` parts have all succeeded: queued; their messages."""
+    rows = s.execute(select(RunStepPart.index, RunStepPart.state, RunStepPart.descriptor)
+                     .where(RunStepPart.run_step_id == pc.step_id)).all()
+    succeeded = {r.index for r in rows if r.state == "succeeded"}
+    ready = [r.index for r in rows if r.state == "waiting" and set(part_after(r.descriptor or {})) <= succeeded]
+    if not ready:
+        return []
+    s.execute(update(RunStepPart).where(RunStepPart.run_step_id == pc.step_id, RunStepPart.index.in_(ready),
+                                        RunStepPart.state == "waiting").values(state="queued", queued_at=now))
+    add_log(s, pc.run_id, f"step {pc.step}: part(s) {', '.join(map(str, ready))} ready (the parts they read are done)",
+            pc.step)
+    return [("part", pc.run_id, pc.step, k) for k in ready]
 
 
 def fail_part(db: Database, pc: PartClaim, reason: str, cancelled: bool = False) -> tuple[bool, list[tuple]]:
@@ -515,7 +535,8 @@ def _end_split_step(s, run_id: str, step_id: str, step: str, reason: str, cancel
                   .values(state="cancelled" if cancelled else "failed", finished_at=now, error=reason)).rowcount
     if n != 1:
         return []
-    s.execute(update(RunStepPart).where(RunStepPart.run_step_id == step_id, RunStepPart.state == "queued")
+    s.execute(update(RunStepPart).where(RunStepPart.run_step_id == step_id,
+                                        RunStepPart.state.in_(("queued", "waiting")))
               .values(state="cancelled", finished_at=now))
     s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.state.in_(("pending", "queued")))
               .values(state="cancelled", finished_at=now,

@@ -1,8 +1,9 @@
 """A LAS/LAZ point cloud converted to another vertical datum, its compound CRS written as the OGC WKT VLR.
 
-Read and written in chunks of a million points (laspy), so a cloud larger than memory converts; the points
-keep every attribute; z changes by height_shift.HeightShift (PROJ at nodes 10 m apart, bilinear between)
-and the header's CRS becomes horizontal + vertical (e.g. "WGS 84 / UTM zone 31N + EGM96 height").
+Read and written in chunks of a million points (the streamed reader and writer of dense/point_cloud_io.py),
+so a cloud larger than memory converts; the points keep every attribute; z changes by
+height_shift.HeightShift (PROJ at nodes 10 m apart, bilinear between) and the header's CRS
+becomes horizontal + vertical (e.g. "WGS 84 / UTM zone 31N + EGM96 height").
 """
 
 from __future__ import annotations
@@ -15,8 +16,6 @@ from ..errors import InputFileError
 from .height_shift import DEFAULT_STEP_M, HeightShift
 from .vertical_datum import compound_crs, datum_of_crs, horizontal_crs, resolve, transformation
 
-CHUNK_POINTS = 1_000_000
-
 
 def convert_point_cloud_heights(src_path, dst_path, to_datum, from_datum=None,
                                 step_m: float = DEFAULT_STEP_M) -> dict:
@@ -24,14 +23,10 @@ def convert_point_cloud_heights(src_path, dst_path, to_datum, from_datum=None,
     datum is ``from_datum`` when given, else the one its CRS states (a 3-D projected CRS: ellipsoidal)."""
     import laspy
 
+    from ..dense.point_cloud_io import open_point_cloud, point_chunks, point_cloud_writer
+
     src_path, dst_path = Path(src_path), Path(dst_path)
-    if not src_path.is_file():
-        raise InputFileError(src_path, "point cloud not found")
-    try:
-        reader = laspy.open(str(src_path))
-    except Exception as exc:  # noqa: BLE001 (laspy raises several unrelated types on bad files)
-        raise InputFileError(src_path, f"not a readable LAS/LAZ file ({exc})") from None
-    with reader:
+    with open_point_cloud(src_path) as reader:
         header = reader.header
         crs = header.parse_crs()
         if crs is None:
@@ -54,13 +49,10 @@ def convert_point_cloud_heights(src_path, dst_path, to_datum, from_datum=None,
                                         "GeoDoubleParamsVlr", "LasZipVlr"):
                 out_header.vlrs.append(v)
         out_header.add_crs(compound_crs(hcrs, b))
-        tmp = dst_path.with_name(dst_path.name + ".part" + dst_path.suffix)
-        dst_path.parent.mkdir(parents=True, exist_ok=True)
         n = 0
         lo, hi = np.inf, -np.inf
-        with laspy.open(str(tmp), mode="w", header=out_header,
-                        do_compress=dst_path.suffix.lower() == ".laz") as writer:
-            for pts in reader.chunk_iterator(CHUNK_POINTS):
+        with point_cloud_writer(dst_path, out_header) as writer:
+            for pts in point_chunks(reader, src_path):
                 x, y = np.asarray(pts.x), np.asarray(pts.y)
                 dz = shift.at(x, y)
                 pts.z = np.asarray(pts.z) + dz
@@ -68,7 +60,6 @@ def convert_point_cloud_heights(src_path, dst_path, to_datum, from_datum=None,
                     lo, hi = min(lo, float(dz.min())), max(hi, float(dz.max()))
                 writer.write_points(pts)
                 n += len(x)
-    tmp.replace(dst_path)
     op = transformation(b if not b.is_ellipsoidal else a)
     return {"from": a.label, "to": b.label, "crs": compound_crs(hcrs, b).name, "path": str(dst_path), "points": n,
             "dz_m": {"min": None if n == 0 else round(lo, 4), "max": None if n == 0 else round(hi, 4)},

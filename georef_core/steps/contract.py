@@ -26,7 +26,8 @@ from typing import Any, Callable
 from ..errors import ProcessingError
 
 __all__ = ["Option", "OptionError", "Output", "Product", "Split", "StepSpec", "StepUnavailable", "Workspace",
-           "all_specs", "get_spec", "load_plugins", "options_from_dataclass", "part_prefix", "register",
+           "all_specs", "check_part_order", "get_spec", "load_plugins", "options_from_dataclass", "part_after",
+           "part_prefix", "register",
            "resolve_function", "run_split", "unregister"]
 
 KINDS = ("number", "integer", "string", "boolean", "numbers", "object")
@@ -178,7 +179,10 @@ class Split:
     * plan(workspace, options, context) -> [part descriptor (a JSON object), ...]: cheap, deterministic from the
       step's inputs; may write shared files under the step's folder (recorded, given to every part);
     * part(workspace, options, part, progress, context): writes only under workspace.part_dir(step, index)
-      (``part["index"]`` is set by the platform: 0..n-1);
+      (``part["index"]`` is set by the platform: 0..n-1). A part whose descriptor names ``"after": [indices]``
+      (earlier parts) runs once those have succeeded and finds their folders (their files) in its workspace:
+      a second phase that reads the first's results (the tiled dense step: depth maps, then the tiles); the
+      other parts see none of the other parts' files;
     * merge(workspace, options, parts, progress, context) -> the step's summary: reads the parts' folders,
       writes the declared outputs.
 
@@ -306,11 +310,25 @@ def run_split(spec: "StepSpec", workspace: Workspace, options: dict, progress, c
     """A split step in one process: plan, every part in order, merge (what the platform does across
     workers, with the same files)."""
     parts = [dict(p, index=k) for k, p in enumerate(resolve_function(spec.split.plan)(workspace, options, context))]
+    check_part_order(spec.name, parts)
     run_part = resolve_function(spec.split.part)
     for p in parts:
         workspace.part_dir(spec.name, p["index"]).mkdir(parents=True, exist_ok=True)
         run_part(workspace, options, p, progress, context)
     return resolve_function(spec.split.merge)(workspace, options, parts, progress, context)
+
+
+def part_after(part: dict) -> list[int]:
+    """The parts a part waits for and reads (its descriptor's ``after``), as indices."""
+    return sorted({int(j) for j in part.get("after") or []})
+
+
+def check_part_order(step: str, parts: list[dict]) -> None:
+    """A plan's ``after`` may name only earlier parts (so the plan's order runs them correctly)."""
+    for k, p in enumerate(parts):
+        bad = [j for j in part_after(p) if not 0 <= j < k]
+        if bad:
+            raise ProcessingError(f"step {step}: part {k} waits for part {bad[0]}, which is not an earlier part")
 
 
 # ------------------------------------------------------------------------------------------------- registry

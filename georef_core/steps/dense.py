@@ -12,7 +12,6 @@ import shutil
 import threading
 import time
 from collections import OrderedDict
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -106,9 +105,28 @@ def _rolling_summary(views) -> dict | None:
                       "median scene depth (docs/dense.md)"}
 
 
-def run_dense(out_dir, options: DenseOptions | dict | None = None, progress: ProgressFn | None = None) -> dict:
+@dataclass
+class BlockDepth:
+    """What a tiled run's fusion part (steps/dense_tiles.py) gives ``run_dense`` instead of its own sparse prior,
+    pair selection and stereo matching: the block's per-view prior, the depth maps its depth parts computed
+    (each image once), the views whose points it keeps (the others only confirm them) and their fusion
+    neighbours as the whole block chose them. Indices are those of the run's own oriented images."""
+
+    prior_views: list            # sparse_prior.ViewDepth per view, from the block's prior
+    sparse_source: str
+    depth_paths: dict            # view -> .npy depth map (fine pass)
+    coarse_paths: dict           # view -> .npy depth map (coarse pass)
+    references: list             # views whose points are output
+    neighbours: dict             # reference view -> its fusion neighbours
+    ortho_window: tuple | None = None   # (w, s, e, n): the orthophoto only there (the tile's core and a band)
+    keep_box: tuple | None = None       # (w, s, e, n): depth pixels whose point falls outside are left out
+
+
+def run_dense(out_dir, options: DenseOptions | dict | None = None, progress: ProgressFn | None = None,
+              block: BlockDepth | None = None) -> dict:
     """Dense point cloud, DSM and orthophoto of the oriented images of ``out_dir``; returns the summary.
-    ``options`` may also be a dict (:meth:`DenseOptions.from_dict`)."""
+    ``options`` may also be a dict (:meth:`DenseOptions.from_dict`). ``block``: a tiled run's fusion part
+    (precomputed depth maps, no stereo matching here)."""
     if isinstance(options, dict):
         options = DenseOptions.from_dict(options)
     import cv2
@@ -119,25 +137,58 @@ def run_dense(out_dir, options: DenseOptions | dict | None = None, progress: Pro
     cv_threads = cv2.getNumThreads()
     try:
         with threadpool_limits(limits=1, user_api="blas"):
-            return _run_dense(out_dir, options, progress)
+            return _run_dense(out_dir, options, progress, block)
     finally:
         cv2.setNumThreads(cv_threads)
 
 
-def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | None) -> dict:
+def _stereo_depth_maps(views, grids, prior, sources, todo: list[int], opts: DenseOptions, work: Path, report,
+                       file_name=lambda i: f"{i:05d}.npy") -> tuple[dict, list, float]:
+    """The depth maps of the views ``todo`` (each the median over its pairs ``sources``), in parallel over the
+    reference images, saved as ``work/file_name(i)`` (only those with some depth): ({view: path}, the pairs'
+    figures, the stereo seconds summed over the threads)."""
+    from ..dense.depth_pass import depth_maps
+
+    cache_lock = threading.Lock()
+    gray_cache: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def gray(k: int) -> np.ndarray:
+        with cache_lock:
+            if k in gray_cache:
+                gray_cache.move_to_end(k)
+                return gray_cache[k]
+        img = views[k].read_image(gray=True)
+        with cache_lock:
+            gray_cache[k] = img
+            while len(gray_cache) > 4 * opts.workers + 8:
+                gray_cache.popitem(last=False)
+        return img
+
+    depth_paths: dict[int, Path] = {}
+
+    def keep(i: int, depth: np.ndarray) -> None:
+        depth_paths[i] = work / file_name(i)
+        np.save(depth_paths[i], depth)
+
+    pair_info, stereo_s = depth_maps(views, grids, gray, prior, sources, opts.stereo, opts.workers, keep, report,
+                                     todo=todo)
+    return depth_paths, pair_info, stereo_s
+
+
+def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | None,
+               block: BlockDepth | None = None) -> dict:
     import cv2
 
     from ..dense import cog_writer, dsm_raster
     from ..dense.camera_views import views_from_oriented
-    from ..dense.coarse_pass import coarse_points, coarse_views
+    from ..dense.coarse_pass import coarse_points, coarse_views, fuse_coarse
     from ..dense.dsm_support import SUPPORT_NODATA, tiered_dsm
-    from ..dense.depth_fusion import concatenate, fuse_view, fusion_neighbours
+    from ..dense.depth_pass import fuse_depth_maps
     from ..dense.orthophoto import build_orthophoto
     from ..dense.pair_selection import select_sources
     from ..dense.point_cloud_filter import surface_outliers, voxel_thin
     from ..dense.point_cloud_io import write_point_cloud
-    from ..dense.rectified_stereo import median_depth_map, pair_depth_map
-    from ..dense.sparse_prior import build_sparse_prior
+    from ..dense.sparse_prior import SparsePrior, build_sparse_prior
     from ..photo.oriented_images import read_oriented_images
 
     opts = options or DenseOptions()
@@ -179,111 +230,66 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
 
     report("sparse prior", 0, 1)
     with timer.stage("sparse_prior"):
-        prior = build_sparse_prior(views, oriented.sparse_xyz_enu_m)
+        if block is None:
+            prior = build_sparse_prior(views, oriented.sparse_xyz_enu_m)
+        else:   # the block's (the same depth ranges and ground heights as a one run's)
+            prior = SparsePrior(np.zeros((0, 3)), list(block.prior_views), block.sparse_source)
         # rolling-shutter images are read as a global shutter's, at each image's median scene depth
         views = [replace(v, scene_depth_m=prior.views[k].depth_med_m) if v.rolling_shutter else v
                  for k, v in enumerate(views)]
     report("sparse prior", 1, 1)
 
-    with timer.stage("pair_selection"):
-        sources = select_sources(views, prior, opts.pairs)
-    n_pairs = sum(len(s) for s in sources)
-    if n_pairs == 0:
-        raise ProcessingError("no image pair overlaps enough for stereo matching (check the orientations and the "
-                              "overlap of the flight)")
+    if block is None:
+        with timer.stage("pair_selection"):
+            sources = select_sources(views, prior, opts.pairs)
+        n_pairs = sum(len(s) for s in sources)
+        if n_pairs == 0:
+            raise ProcessingError("no image pair overlaps enough for stereo matching (check the orientations and the "
+                                  "overlap of the flight)")
 
-    # ---- depth maps (parallel over reference images) --------------------------------------------
-    cache_lock = threading.Lock()
-    gray_cache: OrderedDict[int, np.ndarray] = OrderedDict()
-
-    def gray(k: int) -> np.ndarray:
-        with cache_lock:
-            if k in gray_cache:
-                gray_cache.move_to_end(k)
-                return gray_cache[k]
-        img = views[k].read_image(gray=True)
-        with cache_lock:
-            gray_cache[k] = img
-            while len(gray_cache) > 4 * opts.workers + 8:
-                gray_cache.popitem(last=False)
-        return img
-
-    depth_paths: dict[int, Path] = {}
-    pair_info: list[dict] = []
-    stage_times = {"stereo": 0.0}
-
-    def depth_for(i: int):
+        # ---- depth maps (parallel over reference images) ----------------------------------------
         t0 = time.perf_counter()
-        maps, infos = [], []
-        pv = prior.views[i]
-        for p in sources[i]:
-            dm, info = pair_depth_map(views[i], views[p.src], gray(i), gray(p.src), pv.depth_lo_m, pv.depth_hi_m,
-                                      grids[i], opts.stereo)
-            info.update({"ref": views[i].name, "src": views[p.src].name, "overlap": round(p.overlap, 3),
-                         "b_over_d": round(p.b_over_d, 3)})
-            infos.append(info)
-            if dm is not None:
-                maps.append(dm)
-        depth = median_depth_map(maps) if maps else None
-        return i, depth, infos, time.perf_counter() - t0
-
-    report("depth maps", 0, len(views))
-    t0 = time.perf_counter()
-    todo = [i for i in range(len(views)) if sources[i]]
-    with ThreadPoolExecutor(max_workers=opts.workers) as pool:
-        futures = [pool.submit(depth_for, i) for i in todo]
-        try:
-            for done, fut in enumerate(as_completed(futures), start=1):
-                i, depth, infos, dt = fut.result()
-                stage_times["stereo"] += dt
-                pair_info.extend(infos)
-                if depth is not None and np.isfinite(depth).any():
-                    path = work / f"{i:05d}.npy"
-                    np.save(path, depth)
-                    depth_paths[i] = path
-                report("depth maps", done, len(todo))
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
-    timer.timings["depth_maps"] = time.perf_counter() - t0
+        todo = [i for i in range(len(views)) if sources[i]]
+        depth_paths, pair_info, stereo_s = _stereo_depth_maps(views, grids, prior, sources, todo, opts, work, report)
+        stage_times = {"stereo": stereo_s}
+        timer.timings["depth_maps"] = time.perf_counter() - t0
+    else:   # a tiled run's fusion part: the depth maps its depth parts computed (each image once)
+        sources = [[] for _ in views]
+        n_pairs = 0
+        pair_info = []
+        stage_times = {"stereo": 0.0}
+        depth_paths = {i: Path(p) for i, p in block.depth_paths.items() if Path(p).is_file()}
     if len(depth_paths) < 2:
         raise ProcessingError(f"stereo matching gave depth for only {len(depth_paths)} image(s)")
 
     # ---- fusion -----------------------------------------------------------------------------------
     with timer.stage("fusion"):
         have = sorted(depth_paths)
-        neighbours = fusion_neighbours(views, have, [p.ground_up_m for p in prior.views],
-                                       [p.depth_hi_m for p in prior.views], opts.fusion)
-        used = {i: np.zeros((grids[i].height, grids[i].width), bool) for i in have}
+        if block is None:   # neighbours: footprints at the prior's ground height (fuse_depth_maps)
+            neighbours, refs = None, have
+        else:   # the block's choice; the views around the tile only confirm the tile's points
+            neighbours = block.neighbours
+            refs = [i for i in have if i in set(block.references)]
         depth_cache: OrderedDict[int, np.ndarray] = OrderedDict()
+
+        clip = None   # a tile: only the points around its core (BlockDepth.keep_box)
+        if block is not None and block.keep_box:
+            clip = _depth_clipper(frame, block.keep_box, float(np.median([p.ground_up_m for p in prior.views])))
 
         def depth_of(k: int) -> np.ndarray:
             if k not in depth_cache:
-                depth_cache[k] = np.load(depth_paths[k])
+                depth_cache[k] = np.load(depth_paths[k]) if clip is None else clip(grids[k], np.load(depth_paths[k]))
                 if len(depth_cache) > 2 * opts.fusion.max_neighbours + 2:
                     depth_cache.popitem(last=False)
             depth_cache.move_to_end(k)
             return depth_cache[k]
 
-        parts = []
-        report("fusion", 0, len(have))
-        for n_done, i in enumerate(have, start=1):
-            g = grids[i]
-            mx, my = views[i].undistort_maps(g)
-            colours = cv2.remap(views[i].read_image(), mx, my, cv2.INTER_LINEAR)[:, :, ::-1]
-            parts.append(fuse_view(i, grids, depth_of, used, [j for j in neighbours[i] if j in used], colours,
-                                   opts.fusion))
-            report("fusion", n_done, len(have))
-        if opts.fusion.edge_min_b_over_d > 0:  # second sweep: two-view points at edges and beside occluders
-            for i in have:
-                g = grids[i]
-                mx, my = views[i].undistort_maps(g)
-                colours = cv2.remap(views[i].read_image(), mx, my, cv2.INTER_LINEAR)[:, :, ::-1]
-                parts.append(fuse_view(i, grids, depth_of, used, [j for j in neighbours[i] if j in used], colours,
-                                       opts.fusion, edge=True))
-        fused = concatenate(parts)
-        del parts
+        def colours_of(i: int) -> np.ndarray:
+            mx, my = views[i].undistort_maps(grids[i])
+            return cv2.remap(views[i].read_image(), mx, my, cv2.INTER_LINEAR)[:, :, ::-1]
+
+        fused = fuse_depth_maps(views, grids, have, depth_of, prior, colours_of, opts.fusion, report,
+                                references=refs, neighbours=neighbours)
     if len(fused.xyz_enu_m) < 100:
         raise ProcessingError(f"only {len(fused.xyz_enu_m)} points were confirmed by {opts.fusion.min_views} views: "
                               "the orientations are inconsistent or the images do not overlap")
@@ -319,7 +325,14 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     views_c = coarse_views(views, opts.coarse)
     if views_c is not None:
         with timer.stage("coarse_pass"):
-            cfused, coarse_info = coarse_points(views_c, prior, sources, opts.stereo, opts.fusion, opts.workers, report)
+            if block is None:
+                cfused, coarse_info = coarse_points(views_c, prior, sources, opts.stereo, opts.fusion, opts.workers,
+                                                    report)
+            else:
+                cdepth = {i: np.load(p) if clip is None else clip(views_c[i], np.load(p))
+                          for i, p in block.coarse_paths.items() if Path(p).is_file()}
+                cfused, coarse_info = fuse_coarse(views_c, prior, cdepth, opts.fusion, references=refs)
+                del cdepth
             if len(cfused.xyz_enu_m):
                 coarse_pts = frame.enu_to_grid(cfused.xyz_enu_m)
                 coarse_nv = cfused.n_views
@@ -360,6 +373,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     if opts.ortho:
         with timer.stage("orthophoto"):
             ogrid = dgrid.with_resolution(ortho_res)
+            if block is not None and block.ortho_window is not None:
+                ogrid = _window_of(ogrid, block.ortho_window)
             gmin, gmax = np.percentile(xyz_enu[:, 2], [0.5, 99.5]) if len(xyz_enu) else (0.0, 0.0)
             rgba = build_orthophoto(views, dsm_filled, dgrid, ogrid, frame, (float(gmin), float(gmax)),
                                     [p.depth_med_m for p in prior.views], opts.ortho_options, report,
@@ -374,6 +389,11 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                           "coverage_fraction": float(np.mean(rgba[3] > 0)),
                           "radiometry": ortho_run.get("radiometry"), "radiometry_s": round(ortho_run["radiometry_s"], 3),
                           "mosaic_s": round(ortho_run["mosaic_s"], 3)}
+            model = ortho_run.get("radiometry_model")
+            if block is not None and model is not None:   # the tiles' gains are harmonised in the merge
+                ortho_info["log_gains"] = {views[k].name: [*(float(x) for x in model.log_gain[k]),
+                                                           int(model.observations[k])]
+                                           for k in range(len(views)) if model.observations[k] >= 50}
 
     # ---- point cloud file ----------------------------------------------------------------------------
     report("point cloud", 0, 1)
@@ -408,7 +428,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
         "rolling_shutter": _rolling_summary(views),
         "pairs": {"count": n_pairs, "rectified": int(sum(1 for p in pair_info if p.get("rectified"))),
                   "mean_valid_disparity_fraction": round(float(np.mean(valid_fracs)), 4) if valid_fracs else None,
-                  "images_without_partner": [views[i].name for i in range(n_img) if not sources[i]]},
+                  "images_without_partner": [views[i].name for i in range(n_img) if not sources[i]]
+                  if block is None else []},
         "points": {"fused": int(n_fused), "outliers_removed": int(np.count_nonzero(bad)), "written": int(len(las_xyz)),
                    "mean_views_per_point": round(float(np.mean(n_views)), 3) if len(n_views) else None},
         "dsm": {"width": dgrid.width, "height": dgrid.height, "measured_cells": measured, "filled_cells": filled,
@@ -441,6 +462,116 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     (dense_dir / "dense_summary.json").write_text(json.dumps(summary, indent=2))
     report("done", 1, 1)
     return summary
+
+
+def run_depth_maps(oriented_path, references: list[str], sources: dict, prior: dict, file_stem: dict, work,
+                   options: DenseOptions | dict | None = None, progress: ProgressFn | None = None) -> dict:
+    """A tiled run's depth part (steps/dense_tiles.py): the fine and coarse depth maps of the images
+    ``references`` of the oriented-images file, with the partners the whole block chose for them (``sources``:
+    name -> [pair_selection.StereoPair as a dict, its ``src`` a name, no ``ref``]) and the block's sparse prior (``prior``: name -> [depth lo, median,
+    hi, ground up, points]), saved as ``work/<file_stem[name]>.npy`` and ``.coarse.npy`` - the same maps a one
+    run computes. Returns what was computed (names, pairs, seconds)."""
+    if isinstance(options, dict) or options is None:
+        options = DenseOptions.from_dict(dict(options or {}))
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    cv_threads = cv2.getNumThreads()
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _run_depth_maps(Path(oriented_path), references, sources, prior, file_stem, Path(work), options,
+                                   progress or (lambda stage, done, total: None))
+    finally:
+        cv2.setNumThreads(cv_threads)
+
+
+def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, work: Path, opts: DenseOptions,
+                    report) -> dict:
+    import cv2
+
+    from ..dense.camera_views import views_from_oriented
+    from ..dense.coarse_pass import coarse_depth_maps, coarse_views
+    from ..dense.pair_selection import StereoPair
+    from ..dense.sparse_prior import SparsePrior, ViewDepth
+    from ..photo.oriented_images import read_oriented_images
+
+    cv2.setNumThreads(int(opts.workers))
+    t_start = time.perf_counter()
+    oriented = read_oriented_images(oriented_path)
+    wanted = set(references) | {s["src"] for r in references for s in sources.get(r, [])}
+    missing = sorted(wanted - {im.name for im in oriented.images})
+    if missing:
+        raise InputFileError(oriented_path, f"image {missing[0]} of the dense plan is not in the file")
+    subset = replace(oriented, images=[im for im in oriented.images if im.name in wanted])
+    for im in subset.images:
+        if not subset.image_path(im).is_file():
+            raise InputFileError(subset.image_path(im), f"image of {oriented_path.name} not found")
+    views = views_from_oriented(subset, opts.max_image_size, source=oriented_path)
+    index = {v.name: k for k, v in enumerate(views)}
+    pv = [ViewDepth(*[float(x) for x in prior[v.name][:4]], int(prior[v.name][4])) for v in views]
+    views = [replace(v, scene_depth_m=pv[k].depth_med_m) if v.rolling_shutter else v for k, v in enumerate(views)]
+    grids = [v.scaled(1.0 / opts.depth_map_downscale) if opts.depth_map_downscale != 1 else v for v in views]
+    block_prior = SparsePrior(np.zeros((0, 3)), pv, "the block's")
+    src = [[StereoPair(**dict(p, ref=k, src=index[p["src"]])) for p in sources.get(v.name, [])]
+           if v.name in set(references) else [] for k, v in enumerate(views)]
+    todo = [index[n] for n in references if src[index[n]]]
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    depth_paths, pair_info, stereo_s = _stereo_depth_maps(views, grids, block_prior, src, todo, opts, work, report,
+                                                          lambda i: f"{file_stem[views[i].name]}.npy")
+    t_fine = time.perf_counter() - t0
+    coarse_done, t_coarse = [], 0.0
+    views_c = coarse_views(views, opts.coarse)
+    if views_c is not None:
+        cdepth, t_coarse = coarse_depth_maps(views_c, block_prior, src, opts.stereo, opts.workers, report, todo)
+        for i, d in cdepth.items():
+            np.save(work / f"{file_stem[views[i].name]}.coarse.npy", d)
+            coarse_done.append(views[i].name)
+    # the images actually matched (the pairs' reference images), each once here
+    return {"computed": sorted({p["ref"] for p in pair_info}), "with_depth": sorted(views[i].name for i in depth_paths),
+            "coarse_with_depth": sorted(coarse_done),
+            "pairs": len(pair_info), "rectified": int(sum(1 for p in pair_info if p.get("rectified"))),
+            "valid_fractions": [p["valid_fraction"] for p in pair_info if p.get("rectified")],
+            "matching_image_size_px": [views[0].width, views[0].height],
+            "depth_map_size_px": [grids[0].width, grids[0].height],
+            "timings_s": {"depth_maps": round(t_fine, 3), "coarse_depth_maps": round(t_coarse, 3),
+                          "total": round(time.perf_counter() - t_start, 3)},
+            "stereo_thread_s": round(stereo_s, 3)}
+
+
+def _depth_clipper(frame, box, ground_up_m: float):
+    """A function (grid view, depth map) -> the map with NaN where its pixel's point falls outside ``box`` (w, s,
+    e, n in the project CRS): a tile fuses only the part of its images around its core. The box is taken to
+    ENU (its corners at the ground's height, ``ground_up_m`` in ENU) and tested there on an axis-aligned bound
+    (a little more than the box)."""
+    w, s_, e, n = box
+    h = float(frame.enu_to_grid(np.array([[0.0, 0.0, ground_up_m]]))[0, 2])   # the ground's ellipsoidal height
+    corners = frame.grid_to_enu(np.array([w, e, e, w]), np.array([s_, s_, n, n]), np.full(4, h))
+    lo, hi = corners[:, :2].min(axis=0), corners[:, :2].max(axis=0)
+
+    def clip(g, depth: np.ndarray) -> np.ndarray:
+        v, u = np.nonzero(np.isfinite(depth))
+        X = g.centre_enu_m + depth[v, u].astype(np.float64)[:, None] * g.rays_enu(u, v)
+        out = (X[:, 0] < lo[0]) | (X[:, 0] > hi[0]) | (X[:, 1] < lo[1]) | (X[:, 1] > hi[1])
+        if out.any():
+            depth = depth.copy()
+            depth[v[out], u[out]] = np.nan
+        return depth
+
+    return clip
+
+
+def _window_of(grid, bounds):
+    """The cells of ``grid`` inside ``bounds`` (w, s, e, n), rounded outwards to whole cells of the grid (at
+    least one cell)."""
+    from ..dense.dsm_raster import RasterGrid
+
+    r = grid.resolution_m
+    c0 = int(np.clip(np.floor((bounds[0] - grid.west) / r + 1e-9), 0, grid.width - 1))
+    c1 = int(np.clip(np.ceil((bounds[2] - grid.west) / r - 1e-9), c0 + 1, grid.width))
+    r0 = int(np.clip(np.floor((grid.north - bounds[3]) / r + 1e-9), 0, grid.height - 1))
+    r1 = int(np.clip(np.ceil((grid.north - bounds[1]) / r - 1e-9), r0 + 1, grid.height))
+    return RasterGrid(grid.west + c0 * r, grid.north - r0 * r, r, c1 - c0, r1 - r0)
 
 
 def _check_height_bias(path: Path) -> float | None:

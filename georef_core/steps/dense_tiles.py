@@ -1,17 +1,23 @@
-"""The dense step in spatial tiles (contract.Split: plan, parts, merge), for large blocks and several workers.
+"""The dense step in spatial tiles (contract.Split: plan, parts in two phases, merge), for large blocks and
+several workers.
 
 * plan: reads the oriented images once, builds the sparse prior, fixes the output grids for the whole block
   (DSM and orthophoto cells, the block's ground footprint rounded out to whole cells) and cuts the footprint
-  into ``nx x ny`` tile cores at quantiles of the images' ground centres (similar image counts). A part gets
-  the images whose ground footprint meets its core grown by one footprint (the margin): every image that sees
-  the core, and the fusion neighbours of those.
-* part: the one-process dense step (steps/dense.py run_dense) on that subset, on the block's cells (the same
-  DSM and orthophoto resolutions, cells aligned on multiples of the resolution), then only the core is kept:
-  core rasters cut out of the tile's DSM / mask / support / orthophoto and the points inside the core
-  (``<dense>/parts/<k>/core_*``). Memory is that of one tile's run.
+  into ``nx x ny`` tile cores at quantiles of the images' ground centres (similar image counts). It also
+  chooses, once for the block and as a one run chooses them, every image's stereo partners and fusion
+  neighbours. Two kinds of parts follow:
+* depth parts (phase 1, one per tile's image group: the images whose ground centre lies in the core): the
+  fine and coarse depth maps of their images, each image's computed once for the whole block
+  (steps/dense.py run_depth_maps), in ``<dense>/parts/<k>/depth/``;
+* tiles (phase 2, ``"after"`` the depth parts whose maps they read): the images whose ground footprint meets
+  the core grown by ``tile_margin`` footprints, fused from those depth maps with their block neighbours
+  confirming (run_dense with a BlockDepth: no stereo matching), then outliers, DSM and orthophoto on the
+  block's cells; only the core is kept: core rasters cut out of the tile's DSM / mask / support / orthophoto
+  and the points inside the core (``<dense>/parts/<k>/core_*``). Memory is that of one tile's fusion.
 * merge: the cores are disjoint and tile the block; they are written window by window into tiled temporary
-  GeoTIFFs and copied to COGs by GDAL (streamed), the points appended tile by tile to one LAZ (laspy chunked
-  writer): memory does not grow with the block.
+  GeoTIFFs and copied to COGs by GDAL (streamed), the points appended tile by tile to one LAZ (the streamed
+  writer of dense/point_cloud_io.py): memory does not grow with the block. The tiles' orthophoto gains are
+  put on one gauge from the images they share (harmonise_tile_gains).
 
 Method, figures and limits: docs/dense.md "Large surveys: tiles and workers".
 """
@@ -22,7 +28,7 @@ import json
 import math
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,11 +37,14 @@ from ..errors import InputFileError, ProcessingError
 
 STEP = "dense"
 # tiles=0: one run while it fits in memory (~30 MB per 1600-px image: 250 images ~ 7.5 GB), then about one tile
-# per 100 images (a part near 300 tile-images, ~8-9 GB). Tiles cost CPU (images near a cut are matched in both
-# tiles: ~3 x one run's time on a 100-image block, docs/dense.md), so they are used only where memory needs them
+# per 100 images. Tiles still cost some CPU (each image is matched once, but the images near a cut are fused and
+# mosaicked in both tiles: docs/dense.md), so they are used only where memory needs them
 AUTO_IMAGES_PER_TILE = 100
 AUTO_ONE_TILE_MAX = 250
 MAX_TILES = 64
+# a tile's orthophoto covers its core and this many orthophoto cells around it (more than the blending's reach,
+# 1.5 x 2^levels cells: the seams and pyramids near the cut see the same cells on both sides)
+ORTHO_BAND_CELLS = 64
 
 
 def tile_count(tiles: int, n_images: int) -> int:
@@ -87,7 +96,9 @@ def _cuts(values: np.ndarray, lo: float, hi: float, k: int, unit: float) -> list
 
 def plan(workspace, options: dict, context: dict) -> list[dict]:
     from ..dense.camera_views import views_from_oriented
+    from ..dense.depth_fusion import fusion_neighbours
     from ..dense.orthophoto import view_footprints
+    from ..dense.pair_selection import select_sources
     from ..dense.sparse_prior import build_sparse_prior
     from ..photo.oriented_images import read_oriented_images
     from .dense import _nice
@@ -139,6 +150,41 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
             "epsg": int(oriented.frame.epsg), "margin_m": round(margin, 3), "shape": [len(xs) - 1, len(ys) - 1],
             "gsd_m": round(float(np.median(native)), 4), "n_images": len(views)}
     names = np.array([im.name for im in oriented.images])
+    # the block's pairs, fusion neighbours and prior, chosen once as a one run chooses them: each image's depth
+    # map is computed once (phase 1: its group's depth part), the tiles fuse them (phase 2)
+    views = [replace(v, scene_depth_m=prior.views[k].depth_med_m) if v.rolling_shutter else v
+             for k, v in enumerate(views)]
+    sources = select_sources(views, prior, opts.pairs)
+    if not any(sources):
+        raise ProcessingError("no image pair overlaps enough for stereo matching (check the orientations and the "
+                              "overlap of the flight)")
+    matched = [i for i in range(len(views)) if sources[i]]
+    neighbours = fusion_neighbours(views, matched, [p.ground_up_m for p in prior.views],
+                                   [p.depth_hi_m for p in prior.views], opts.fusion)
+    # exact values (JSON keeps a float's digits): the depth parts search the disparities a one run searches
+    prior_of = {names[k]: [float(v.depth_lo_m), float(v.depth_med_m), float(v.depth_hi_m), float(v.ground_up_m),
+                           int(v.n_points)] for k, v in enumerate(prior.views)}
+    stem = {names[k]: f"{k:05d}" for k in range(len(names))}
+    grid.update(sparse_source=prior.source, sparse_points=int(len(prior.xyz_enu_m)))
+    # depth groups: the images whose ground centre lies in a tile's core (no centre: the nearest core's)
+    cx = np.where(ok, centres[:, 0], np.nanmedian(centres[ok, 0]))
+    cy = np.where(ok, centres[:, 1], np.nanmedian(centres[ok, 1]))
+    gx = np.clip(np.searchsorted(xs, cx, side="right") - 1, 0, len(xs) - 2)
+    gy = np.clip(np.searchsorted(ys, cy, side="right") - 1, 0, len(ys) - 2)
+    depth_parts, owner = [], {}
+    for iy in range(len(ys) - 1):
+        for ix in range(len(xs) - 1):
+            group = [i for i in matched if gx[i] == ix and gy[i] == iy]
+            if not group:
+                continue
+            for i in group:
+                owner[names[i]] = len(depth_parts)
+            need = sorted(set(group) | {p.src for i in group for p in sources[i]})
+            depth_parts.append({"phase": "depth", "group": [ix, iy], "images": [names[i] for i in group],
+                                "sources": {names[i]: [_pair_dict(p, names) for p in sources[i]] for i in group},
+                                "prior": {names[i]: prior_of[names[i]] for i in need},
+                                "stems": {names[i]: stem[names[i]] for i in group}, "grid": grid})
+    grid["depth_parts"] = len(depth_parts)
     parts = []
     for iy in range(len(ys) - 1):
         for ix in range(len(xs) - 1):
@@ -146,10 +192,30 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
             grown = [core[0] - margin, core[1] - margin, core[2] + margin, core[3] + margin]
             sees = (ok & (boxes[:, 0] < grown[2]) & (boxes[:, 2] > grown[0]) & (boxes[:, 1] < grown[3])
                     & (boxes[:, 3] > grown[1]))
-            parts.append({"tile": [ix, iy], "core": core, "outer": [ix == 0, iy == 0, ix == len(xs) - 2,
-                                                                   iy == len(ys) - 2],
-                          "images": names[np.where(sees, True, False)].tolist(), "grid": grid})
-    return parts
+            refs = [int(i) for i in np.flatnonzero(sees)]
+            # the tile's images and their fusion neighbours (which confirm the tile's points, as in a one run)
+            needs = sorted(set(refs) | {j for i in refs for j in neighbours.get(i, [])})
+            with_depth = [names[i] for i in needs if names[i] in owner]
+            parts.append({"phase": "fuse", "tile": [ix, iy], "core": core,
+                          "outer": [ix == 0, iy == 0, ix == len(xs) - 2, iy == len(ys) - 2],
+                          "images": [names[i] for i in refs], "needs": [names[i] for i in needs],
+                          "depth": {n: [owner[n], stem[n]] for n in with_depth},
+                          "after": sorted({owner[n] for n in with_depth}),
+                          "prior": {names[i]: prior_of[names[i]] for i in needs},
+                          "neighbours": {names[i]: [names[j] for j in neighbours.get(i, [])] for i in refs},
+                          "grid": grid})
+    return depth_parts + parts
+
+
+def _pair_dict(pair, names) -> dict:
+    """A StereoPair as a part descriptor carries it (JSON; its partner by name, its reference implied)."""
+    d = {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in asdict(pair).items() if k != "ref"}
+    d["src"] = str(names[pair.src])
+    return d
+
+
+def _grown(box, d: float) -> list[float]:
+    return [box[0] - d, box[1] - d, box[2] + d, box[3] + d]
 
 
 def _core_window(transform, core, res) -> tuple[int, int, int, int]:
@@ -172,8 +238,9 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
     from ..dense import dsm_raster
     from ..dense.dsm_support import SUPPORT_NODATA
     from ..dense.point_cloud_io import read_point_cloud
+    from ..dense.sparse_prior import ViewDepth
     from ..photo.oriented_images import read_oriented_images
-    from .dense import run_dense
+    from .dense import BlockDepth, run_dense
 
     opts = _options(options)
     k = int(part["index"])
@@ -181,11 +248,13 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
     pdir.mkdir(parents=True, exist_ok=True)
     if part.get("tile") == "whole":
         raise ProcessingError("a one-tile dense plan runs as the step itself, not as a part")
+    if part.get("phase") == "depth":
+        return _depth_part(workspace, opts, part, progress)
     grid = part["grid"]
     n_parts = grid["shape"][0] * grid["shape"][1]
     core, res, ores = part["core"], grid["resolution_m"], grid["ortho_resolution_m"]
     report = progress or (lambda stage, done, total: None)
-    label = f"tile {k + 1}/{n_parts}"
+    label = f"tile {k - int(grid.get('depth_parts', 0)) + 1}/{n_parts}"
     result = {"index": k, "tile": part["tile"], "core": core, "images": len(part["images"])}
     if len(part["images"]) < 2:
         result["skipped"] = "fewer than 2 images see the tile"
@@ -194,14 +263,36 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
         return
     path = _oriented_path(workspace, opts)
     oriented = read_oriented_images(path)
-    wanted = set(part["images"])
+    wanted = set(part.get("needs") or part["images"])
     subset = replace(oriented, images=[im for im in oriented.images if im.name in wanted])
     sub_path = subset.write(pdir / "oriented_images.json")
     sub_opts = replace(opts, oriented_path=str(sub_path), resolution_m=res, ortho_resolution_m=ores,
                        keep_depth_maps=False, tiles=1)
+    # the depth maps the depth parts computed (their folders: the parts named in "after")
+    local = {im.name: j for j, im in enumerate(subset.images)}
+    depth = part.get("depth") or {}
+    folder = {n: workspace.part_dir(STEP, int(owner)) / "depth" for n, (owner, _) in depth.items()}
+    for owner in sorted({int(o) for o, _ in depth.values()}):
+        if not (workspace.part_dir(STEP, owner) / "depth_summary.json").is_file():
+            raise ProcessingError(f"{label}: depth part {owner} left no result (depth_summary.json missing): the "
+                                  "depth parts run before the tiles")
+    block = BlockDepth(
+        prior_views=[ViewDepth(*[float(x) for x in part["prior"][im.name][:4]], int(part["prior"][im.name][4]))
+                     for im in subset.images],
+        sparse_source=grid.get("sparse_source", "oriented images"),
+        depth_paths={local[n]: folder[n] / f"{stem}.npy" for n, (_, stem) in depth.items()},
+        coarse_paths={local[n]: folder[n] / f"{stem}.coarse.npy" for n, (_, stem) in depth.items()},
+        references=sorted(local[n] for n in part["images"]),
+        neighbours={local[n]: [local[j] for j in nb if j in local] for n, nb in (part.get("neighbours") or {}).items()},
+        # the orthophoto over the core and a band (its blending runs on across the cut), not the tile's extent
+        ortho_window=tuple(_grown(core, ORTHO_BAND_CELLS * ores)),
+        # the points fused: the core and its margin, at least the hole filling's reach and a few cells more (the
+        # outlier test and the filling near the core see what a one run sees)
+        keep_box=tuple(_grown(core, max(float(grid["margin_m"]), 2.0 * opts.max_gap_m) + 8 * res)))
     t0 = time.perf_counter()
     try:
-        summary = run_dense(pdir, sub_opts, lambda stage, done, total: report(f"{label}: {stage}", done, total))
+        summary = run_dense(pdir, sub_opts, lambda stage, done, total: report(f"{label}: {stage}", done, total),
+                            block=block)
     except ProcessingError as exc:   # a tile with too little overlap: its core stays empty, the others go on
         result["skipped"] = str(exc)
         summary = None
@@ -238,6 +329,85 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
     (pdir / "core_summary.json").write_text(json.dumps(result, indent=1))
 
 
+def _depth_part(workspace, opts, part: dict, progress) -> None:
+    """Phase 1: the depth maps (fine and coarse) of the part's image group, each image's once for the block,
+    into ``parts/<k>/depth/<stem>.npy``; what was computed in ``depth_summary.json``."""
+    from .dense import run_depth_maps
+
+    k = int(part["index"])
+    pdir = workspace.part_dir(STEP, k)
+    n = int(part["grid"].get("depth_parts", 1))
+    label = f"depth maps {k + 1}/{n}"
+    report = progress or (lambda stage, done, total: None)
+    t0 = time.perf_counter()
+    result = run_depth_maps(_oriented_path(workspace, opts), part["images"], part["sources"], part["prior"],
+                            part["stems"], pdir / "depth", replace(opts, tiles=1),
+                            lambda stage, done, total: report(f"{label}: {stage}", done, total))
+    result.update(index=k, phase="depth", group=part["group"], seconds=round(time.perf_counter() - t0, 3))
+    (pdir / "depth_summary.json").write_text(json.dumps(result, indent=1))
+
+
+def harmonise_tile_gains(tile_gains: list[dict]) -> tuple[np.ndarray, dict]:
+    """Per-tile colour factors that put the tiles' orthophotos on one radiometry. Each tile estimated its
+    images' log gains with its own gauge (their mean held at 0, ortho_radiometry.py), so an image seen by two
+    tiles has log gains differing by the tiles' gauges: a_k(t) = a_k + c_t. The c_t (per channel, their mean
+    0) are fitted by weighted least squares over the images shared by tiles (weight: the observations the
+    tile's estimate of that image rests on); a tile's corrected colours (divided by exp(a_k(t))) become the
+    block's by multiplying them by exp(c_t). ``tile_gains``: per tile {image: [3 log gains] or [3 log gains,
+    observations]} (empty: no estimate). Returns (n_tiles, 3) factors (1 for a tile sharing no image) and
+    figures: the weighted RMS of the shared images' gains about their per-image mean, before (c = 0) and
+    after the fit."""
+    n = len(tile_gains)
+    seen: dict[str, list[int]] = {}
+    for t, g in enumerate(tile_gains):
+        for name in g or {}:
+            seen.setdefault(name, []).append(t)
+    shared = sorted(k for k, ts in seen.items() if len(ts) > 1)
+    linked = sorted({t for k in shared for t in seen[k]})
+    factors = np.ones((n, 3))
+    if len(linked) < 2:
+        return factors, {"shared_images": len(shared), "tiles_linked": len(linked)}
+    col = {t: j for j, t in enumerate(linked)}
+    nl = len(linked)
+    rows, obs, w = [], [], []
+    for i, k in enumerate(shared):
+        for t in seen[k]:
+            r = np.zeros(nl + len(shared))
+            r[col[t]] = 1.0
+            r[nl + i] = 1.0
+            rows.append(r)
+            v = tile_gains[t][k]
+            obs.append(v[:3])
+            w.append(max(float(v[3]), 1e-9) if len(v) > 3 else 1.0)
+    A, b, sw = np.array(rows), np.asarray(obs, float), np.sqrt(np.array(w))
+    gauge = np.zeros(nl + len(shared))
+    gauge[:nl] = 10.0 * sw.max()
+    x, *_ = np.linalg.lstsq(np.vstack([A * sw[:, None], gauge]), np.vstack([b * sw[:, None], np.zeros((1, 3))]),
+                            rcond=None)
+    c = x[:nl]                                              # (tiles linked, 3)
+    # before: the same images' gains about their weighted mean per image (no tile offsets)
+    a0 = np.array([np.average(b[A[:, nl + i] > 0], axis=0, weights=np.array(w)[A[:, nl + i] > 0])
+                   for i in range(len(shared))])
+    r0 = b - A[:, nl:] @ a0
+    r1 = b - A @ x
+    W = np.array(w)[:, None]
+    for t in linked:
+        factors[t] = np.exp(c[col[t]])
+    return factors, {"shared_images": len(shared), "tiles_linked": len(linked),
+                     "tile_offsets_percent": [[round(100 * float(v), 3) for v in c[col[t]]] if t in col else None
+                                              for t in range(n)],
+                     "residual_rms_percent_before": round(100 * float(np.sqrt(np.sum(W * r0 ** 2) / W.sum() / 3)), 3),
+                     "residual_rms_percent": round(100 * float(np.sqrt(np.sum(W * r1 ** 2) / W.sum() / 3)), 3)}
+
+
+def _scale_colours(rgba: np.ndarray, factor) -> np.ndarray:
+    """An RGBA (4, h, w) uint8 core with its colours multiplied by ``factor`` (3,), where it has data."""
+    out = rgba.copy()
+    rgb = rgba[:3].astype(np.float32) * np.asarray(factor, np.float32)[:, None, None]
+    out[:3] = np.where(rgba[3] > 0, np.clip(np.rint(rgb), 0, 255), rgba[:3]).astype(np.uint8)
+    return out
+
+
 def _tiled_profile(width, height, count, dtype, transform, epsg, nodata):
     p = {"driver": "GTiff", "width": width, "height": height, "count": count, "dtype": dtype,
          "crs": f"EPSG:{int(epsg)}", "transform": transform, "tiled": True, "blockxsize": 512, "blockysize": 512,
@@ -248,8 +418,6 @@ def _tiled_profile(width, height, count, dtype, transform, epsg, nodata):
 
 
 def merge(workspace, options: dict, parts: list[dict], progress, context: dict) -> dict:
-    import laspy
-    import pyproj
     import rasterio
     from rasterio.windows import Window
 
@@ -257,6 +425,7 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     from ..dense.cog_writer import RGBA, geotiff_to_cog
     from ..dense.dsm_raster import RasterGrid
     from ..dense.dsm_support import SUPPORT_NODATA
+    from ..dense.point_cloud_io import dense_cloud_header, dense_points, point_cloud_writer
     from .dense import DENSE_DIR, _check_height_bias, _options_dict
 
     opts = _options(options)
@@ -269,6 +438,15 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     dgrid = RasterGrid(g["west"], g["north"], res, g["width"], g["height"])
     ogrid = dgrid.with_resolution(ores)
     epsg = g["epsg"]
+    # phase 1 (depth maps, each image's once) and phase 2 (the tiles, fused from them)
+    depth_results = []
+    for p in parts:
+        if p.get("phase") == "depth":
+            f = workspace.part_dir(STEP, p["index"]) / "depth_summary.json"
+            if not f.is_file():
+                raise ProcessingError(f"part {p['index']} of the dense step left no result ({f.name} missing)")
+            depth_results.append(json.loads(f.read_text()))
+    parts = [p for p in parts if p.get("phase") != "depth"]
     results = []
     for p in parts:
         f = workspace.part_dir(STEP, p["index"]) / "core_summary.json"
@@ -284,6 +462,9 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     if opts.ortho:
         layers["ortho"] = (4, "uint8", None, ogrid, ores)
     tmp = {name: out / f".{name}.merge.tif" for name in layers}
+    # the tiles' orthophoto gains on one gauge (images shared by tiles): one colour factor per tile
+    gain_factors, harmonised = harmonise_tile_gains(
+        [((r.get("summary") or {}).get("ortho") or {}).get("log_gains") or {} for r in results])
     stats = {"measured": 0, "filled": 0, "coarse": 0, "ortho_covered": 0, "cnt_weight": 0.0}
     dsts = {}
     try:
@@ -293,6 +474,8 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
         for n_done, (p, r) in enumerate(zip(parts, results), start=1):
             pdir = workspace.part_dir(STEP, p["index"])
             arrays = dict(np.load(pdir / "core_rasters.npz")) if "summary" in r else {}
+            if "ortho" in arrays and not np.allclose(gain_factors[n_done - 1], 1.0):
+                arrays["ortho"] = _scale_colours(arrays["ortho"], gain_factors[n_done - 1])
             for name, (count, dt, nd, gr, rr) in layers.items():
                 c0, r0, w, h = _core_window(gr.transform, p["core"], rr)
                 a = arrays.get(name)
@@ -335,15 +518,9 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
             f.unlink(missing_ok=True)
 
     # the points, tile by tile (one tile's points in memory)
-    header = laspy.LasHeader(point_format=7, version="1.4")
-    header.scales = np.array([0.001, 0.001, 0.001])
-    header.offsets = np.array([math.floor(g["west"]), math.floor(g["north"] - g["height"] * res), 0.0])
-    header.add_crs(pyproj.CRS.from_epsg(int(epsg)).to_3d())
-    header.system_identifier = "georef dense"
-    header.generating_software = "georef"
-    las_tmp = out / "points.part.laz"
+    header = dense_cloud_header(epsg, [math.floor(g["west"]), math.floor(g["north"] - g["height"] * res), 0.0])
     n_points, n_views_sum = 0, 0.0
-    with laspy.open(str(las_tmp), mode="w", header=header, do_compress=True) as writer:
+    with point_cloud_writer(out / "points.laz", header) as writer:
         for p, r in zip(parts, results):
             if "summary" not in r:
                 continue
@@ -351,23 +528,25 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
                 xyz, rgb, nv = z["xyz"], z["rgb"], z["n_views"]
             if not len(xyz):
                 continue
-            rec = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=header)
-            rec.x, rec.y, rec.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-            rgb16 = rgb.astype(np.uint16) * 257
-            rec.red, rec.green, rec.blue = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
-            rec.classification = np.ones(len(xyz), np.uint8)
-            rec.user_data = nv.astype(np.uint8)
-            writer.write_points(rec)
+            writer.write_points(dense_points(header, xyz, rgb, n_views=nv))
             n_points += len(xyz)
             n_views_sum += float(nv.sum())
-    las_tmp.replace(out / "points.laz")
 
     sums = [r["summary"] for r in done]
     timings: dict[str, float] = {}
     for s in sums:
         for k, v in (s.get("timings_s") or {}).items():
             timings[k] = round(timings.get(k, 0.0) + v, 3)
+    for d in depth_results:
+        for k, v in (d.get("timings_s") or {}).items():
+            if k != "total":
+                timings[k] = round(timings.get(k, 0.0) + v, 3)
     timings["merge"] = round(time.perf_counter() - t0, 3)
+    times_computed: dict[str, int] = {}
+    for d in depth_results:
+        for name in d.get("computed") or []:
+            times_computed[name] = times_computed.get(name, 0) + 1
+    valid_fracs = [v for d in depth_results for v in d.get("valid_fractions") or []]
     w_pts = np.array([max(1, (s.get("points") or {}).get("written") or 1) for s in sums], float)
     rm = np.array([s.get("dsm_vertical_rmse_m") or np.nan for s in sums], float)
     okr = np.isfinite(rm)
@@ -388,13 +567,19 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
         "dsm_resolution_m": res,
         "tiles": {"count": len(parts), "shape": g["shape"], "margin_m": g["margin_m"],
                   "images_processed": tile_images, "overlap_factor": round(tile_images / g["n_images"], 3),
+                  "depth_maps_computed": sum(times_computed.values()),
+                  "depth_maps_computed_twice": sorted(n for n, c in times_computed.items() if c > 1),
+                  "per_depth_part": [{"group": d["group"], "images": len(d.get("computed") or []),
+                                      "seconds": d.get("seconds")} for d in depth_results],
                   "per_tile": [{"tile": r["tile"], "core": r["core"], "images": r["images"],
                                 "seconds": r.get("seconds"), "points": r.get("core_points"),
                                 **({"skipped": r["skipped"]} if r.get("skipped") else {})} for r in results]},
-        "sparse_prior": first.get("sparse_prior"),
+        "sparse_prior": ({"source": g["sparse_source"], "points": g.get("sparse_points")} if "sparse_source" in g
+                         else first.get("sparse_prior")),
         "rolling_shutter": first.get("rolling_shutter"),
-        "pairs": {"count": sum((s.get("pairs") or {}).get("count", 0) for s in sums),
-                  "rectified": sum((s.get("pairs") or {}).get("rectified", 0) for s in sums)},
+        "pairs": {"count": sum(d.get("pairs", 0) for d in depth_results),
+                  "rectified": sum(d.get("rectified", 0) for d in depth_results),
+                  "mean_valid_disparity_fraction": round(float(np.mean(valid_fracs)), 4) if valid_fracs else None},
         "points": {"fused": sum((s.get("points") or {}).get("fused", 0) for s in sums),
                    "outliers_removed": sum((s.get("points") or {}).get("outliers_removed", 0) for s in sums),
                    "written": int(n_points),
@@ -405,14 +590,15 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
                            dgrid.north]},
         "ortho": ({"resolution_m": ores, "width": ogrid.width, "height": ogrid.height,
                    "coverage_fraction": stats["ortho_covered"] / max(1, ogrid.width * ogrid.height),
-                   "radiometry": "estimated per tile (its images and margin)"} if opts.ortho else None),
+                   "radiometry": "estimated per tile (its images and margin), the tiles' gains harmonised on the "
+                                 "images they share", "tile_harmonisation": harmonised} if opts.ortho else None),
         "dsm_vertical_rmse_m": round(rmse, 4) if rmse is not None else None,
         "dsm_smoothing_radius_m": max(s.get("dsm_smoothing_radius_m") or 0.0 for s in sums),
         "dsm_vertical_rmse_source": "internal estimate: agreement of the views fused into each point (random "
                                     "part only; the georeferencing bias is not in it), RMS over the tiles",
         **({"check_height_bias_m": round(check_bias, 4)} if check_bias is not None else {}),
         "timings_s": timings,
-        "time_per_image_s": round(sum(r.get("seconds") or 0.0 for r in results) / g["n_images"] +
+        "time_per_image_s": round(sum(r.get("seconds") or 0.0 for r in results + depth_results) / g["n_images"] +
                                   timings["merge"] / g["n_images"], 3),
         "workers": opts.workers,
         "outputs": {k: str(out / f) for k, f in (("points", "points.laz"), ("dsm", "dsm.tif"),

@@ -54,7 +54,7 @@ def run_dtm(out_dir, options: GroundFilterOptions | dict | None = None, progress
             dsm_path=None, points_path=None, dtm_dir=None) -> dict:
     """Ground classification and DTM of a run folder holding dense/ (paths overridable); returns the summary."""
     from ..dense import cog_writer
-    from ..dense.point_cloud_io import read_point_cloud
+    from ..dense.point_cloud_io import open_point_cloud, point_chunks, point_cloud_writer, point_xyz
     from ..dtm.bare_earth import MASK_NODATA, build_dtm, interpolation_check
     from ..dtm.ground_filter import classify_dsm
     from ..dtm.point_classes import CLASS_GROUND, CLASS_LOW_NOISE, CLASS_NAMES, CLASS_UNCLASSIFIED, classify_points
@@ -126,14 +126,20 @@ def run_dtm(out_dir, options: GroundFilterOptions | dict | None = None, progress
 
     report("dtm: points", 2, 3)
     t = time.perf_counter()
-    xyz, _rgb, _pcrs, las = read_point_cloud(points_path)
-    cls, _dz = classify_points(xyz, dtm, transform, o.ground_tolerance_m, o.low_noise_m)
-    las.classification = cls
-    las.header.generating_software = "georef"
-    laz = target / "points_classified.laz"
-    tmp = laz.with_name(laz.name + ".part.laz")
-    las.write(str(tmp), do_compress=True)
-    tmp.replace(laz)
+    # streamed, a million points at a time: memory does not grow with the cloud
+    counts = dict.fromkeys((CLASS_GROUND, CLASS_UNCLASSIFIED, CLASS_LOW_NOISE), 0)
+    n_points = 0
+    with open_point_cloud(points_path) as reader:
+        header = reader.header
+        header.generating_software = "georef"
+        with point_cloud_writer(target / "points_classified.laz", header) as writer:
+            for pts in point_chunks(reader, points_path):
+                cls, _dz = classify_points(point_xyz(pts), dtm, transform, o.ground_tolerance_m, o.low_noise_m)
+                pts.classification = cls
+                writer.write_points(pts)
+                n_points += len(cls)
+                for c in counts:
+                    counts[c] += int(np.count_nonzero(cls == c))
     timings["points"] = time.perf_counter() - t
     report("dtm: points", 3, 3)
 
@@ -146,7 +152,6 @@ def run_dtm(out_dir, options: GroundFilterOptions | dict | None = None, progress
             dense_summary = {}
     n_valid = int(valid.sum())
     n_removed = int((gc.nonground & valid).sum())
-    counts = {int(c): int(np.count_nonzero(cls == c)) for c in (CLASS_GROUND, CLASS_UNCLASSIFIED, CLASS_LOW_NOISE)}
     timings["total"] = time.perf_counter() - t_all
     summary = {
         "dsm": str(dsm_path), "points_input": str(points_path), "epsg": epsg, "resolution_m": resolution,
@@ -155,9 +160,9 @@ def run_dtm(out_dir, options: GroundFilterOptions | dict | None = None, progress
                 "ground_share": round((n_valid - n_removed) / n_valid, 5),
                 "removed_area_m2": round(n_removed * resolution * resolution, 3),
                 "dsm_interpolated_ground_cells": int(np.count_nonzero(mask == 2))},
-        "points": {"total": int(len(cls)), "ground": counts[CLASS_GROUND], "unclassified": counts[CLASS_UNCLASSIFIED],
+        "points": {"total": n_points, "ground": counts[CLASS_GROUND], "unclassified": counts[CLASS_UNCLASSIFIED],
                    "low_noise": counts[CLASS_LOW_NOISE],
-                   "ground_share": round(counts[CLASS_GROUND] / max(1, len(cls)), 5),
+                   "ground_share": round(counts[CLASS_GROUND] / max(1, n_points), 5),
                    "classes": {str(k): v for k, v in CLASS_NAMES.items()}},
         "removed_objects": objects,
         "interpolation_check": check,

@@ -24,7 +24,10 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
     shared.parent.mkdir(parents=True, exist_ok=True)
     shared.write_text(json.dumps({"files": names}))
     n = int(options.get("parts") or 3)
-    return [{"files": names[k::n]} for k in range(n)]
+    parts = [{"files": names[k::n]} for k in range(n)]
+    if options.get("phases"):   # a second phase: one part that reads the first parts' files (contract.Split "after")
+        parts.append({"files": [], "after": list(range(n))})
+    return parts
 
 
 def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
@@ -37,9 +40,13 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
         if progress:
             progress("toy parts", k + 1, len(part["files"]))
     time.sleep(float(options.get("work_s") or 0.0))
+    read = {}
+    for j in part.get("after") or []:   # the earlier parts' results, found in this part's workspace
+        read[j] = json.loads((workspace.part_dir("toysplit", j) / "part.json").read_text())["sha256"]
+        digest.update(read[j].encode())
     out = workspace.part_dir("toysplit", part["index"]) / "part.json"
     out.write_text(json.dumps({"index": part["index"], "files": part["files"], "sha256": digest.hexdigest(),
-                               "of": len(shared["files"]), "pid": os.getpid()}))
+                               "of": len(shared["files"]), "pid": os.getpid(), "read": sorted(read)}))
 
 
 def merge(workspace, options: dict, parts: list[dict], progress, context: dict) -> dict:
@@ -47,10 +54,10 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     if sorted(d["index"] for d in done) != list(range(len(parts))):
         raise ProcessingError("a part is missing")
     result = workspace.path("toysplit", "result")
-    result.write_text(json.dumps({"parts": [{k: d[k] for k in ("index", "files", "sha256")} for d in done]},
+    result.write_text(json.dumps({"parts": [{k: d[k] for k in ("index", "files", "sha256", "read")} for d in done]},
                                  indent=1))
     return {"parts": len(done), "processes": len({d["pid"] for d in done}),
-            "files": sum(len(d["files"]) for d in done)}
+            "files": sum(len(d["files"]) for d in done), "read": [d["read"] for d in done]}
 
 
 def run(workspace, options: dict, progress, context: dict) -> dict:
@@ -64,7 +71,9 @@ TOY_SPLIT = register(StepSpec(
                 merge="tests.steps.toy_split_step:merge"),
     options=(Option("parts", "integer", 3, "parts", minimum=1, maximum=16),
              Option("work_s", "number", 0.0, "seconds each part waits", minimum=0.0, maximum=30.0),
-             Option("fail_part", "integer", None, "this part raises", minimum=0, maximum=15)),
+             Option("fail_part", "integer", None, "this part raises", minimum=0, maximum=15),
+             Option("phases", "boolean", False, "a last part reads the others' files (after them)")),
     outputs=(Output("result", "toysplit/result.json", "the parts' hashes", "application/json"),),
-    summary={"parts": "parts merged", "processes": "processes that ran them", "files": "files hashed"},
+    summary={"parts": "parts merged", "processes": "processes that ran them", "files": "files hashed",
+             "read": "per part, the earlier parts whose files it read"},
 ))

@@ -37,15 +37,15 @@ def _survey(api, name: str) -> str:
     return survey["id"]
 
 
-def _local_result(tmp_path, parts: int) -> dict:
+def _local_result(tmp_path, parts: int, phases: bool = False) -> dict:
     """The same step in one process, on the same files."""
     survey = tmp_path / "local_survey"
     for path, data in FILES.items():
         (survey / path).parent.mkdir(parents=True, exist_ok=True)
         (survey / path).write_bytes(data)
     ws = Workspace(survey, tmp_path / "local_out")
-    summary = run_split(get_spec("toysplit"), ws, {"parts": parts}, None, {"crs": "EPSG:32631"})
-    assert summary["parts"] == parts
+    summary = run_split(get_spec("toysplit"), ws, {"parts": parts, "phases": phases}, None, {"crs": "EPSG:32631"})
+    assert summary["parts"] == parts + phases
     return json.loads(ws.path("toysplit", "result").read_text())
 
 
@@ -91,14 +91,19 @@ def test_parts_in_the_embedded_shape(platform, tmp_path, toysplit_registered):
     api = Api(p, "emb-split@example.org")
     survey = _survey(api, "split-embedded")
     start_worker(p, "one", step_plugins=PLUGIN)
+    # two phases (contract.Split "after"): a third part waits for the first two and reads their files
     run = api.post(f"/api/v1/surveys/{survey}/runs",
-                   json={"steps": ["toysplit"], "settings": {"toysplit": {"parts": 2}}}).json()
+                   json={"steps": ["toysplit"], "settings": {"toysplit": {"parts": 2, "phases": True}}}).json()
     final = wait_run(api, run["id"], timeout_s=120)
     assert final["state"] == "succeeded", final
     step = next(s for s in final["step_details"] if s["name"] == "toysplit")
-    assert step["summary"]["parts"] == 2 and step["summary"]["processes"] == 1
+    assert step["summary"]["parts"] == 3 and step["summary"]["processes"] == 1
+    assert step["summary"]["read"] == [[], [], [0, 1]]          # the second phase found the first's files
     merged = json.loads(api.get(f"/api/v1/runs/{run['id']}/results/files/toysplit/result.json").text)
-    assert merged == _local_result(tmp_path, 2)
+    assert merged == _local_result(tmp_path, 2, phases=True)
+    logs = api.get(f"/api/v1/runs/{run['id']}/logs").json()
+    text = "\n".join(e["message"] for e in (logs["items"] if isinstance(logs, dict) else logs))
+    assert "part(s) 2 ready" in text
 
 
 def test_a_step_or_part_failure_is_recorded_alike(tmp_path, monkeypatch):

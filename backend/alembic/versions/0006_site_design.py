@@ -29,7 +29,7 @@ def upgrade() -> None:
     sa.Column('surface_name', sa.String(length=200), nullable=True),
     sa.Column('described', sa.JSON(), nullable=False),
     sa.Column('area', sa.JSON(), nullable=True),
-    sa.Column('tolerance_m', sa.Float(), nullable=False),
+    sa.Column('tolerance_m', sa.Double(), nullable=False),   # Mapped[float]'s type (PostgreSQL: float8 either way)
     sa.Column('uploaded_by', sa.String(length=36), nullable=True),
     sa.Column('created_at', dt, nullable=False),
     sa.Column('updated_at', dt, nullable=False),

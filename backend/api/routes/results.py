@@ -94,7 +94,7 @@ def point_cloud(run_id: str, ctx: CtxDep, request: Request,
         return blob_response(request, ctx.storage, o.sha256, o.size, results.media_type(o.path),
                              "points." + o.path.rsplit(".", 1)[-1])
     if format == "las" and o.path.endswith(".laz"):
-        import laspy
+        from georef_core.dense.point_cloud_io import copy_point_cloud
 
         src = ctx.storage.local_path(blob_key(o.sha256))
         tmp_dir = ctx.settings.resolved_work_dir() / "tmp"
@@ -108,7 +108,7 @@ def point_cloud(run_id: str, ctx: CtxDep, request: Request,
                 os.close(fd2)
                 ctx.storage.fetch(blob_key(o.sha256), src_tmp)
                 src = src_tmp
-            laspy.read(src).write(tmp)
+            copy_point_cloud(src, tmp)       # streamed: a million points at a time
         finally:
             if src_tmp:
                 os.unlink(src_tmp)
