@@ -33,3 +33,26 @@ class DesignOut(ORM):
     created_at: datetime
     updated_at: datetime
     version: int
+
+
+class DesignChange(BaseModel):
+    """One survey of design-progress against the survey before it (services/designs.changes_between): what
+    moved toward the design between the two flights, and what remains to the design. Volumes in m3, sigmas
+    1 sigma: each survey's own error (DSM noise, georeferencing bias, unmeasured area) is independent of the
+    other's, the design's own error is common to both and cancels (only the change of its share remains)."""
+
+    previous_survey_id: str
+    previous_survey_name: str
+    days: float | None = Field(default=None, description="days between the two flights (null: a date missing)")
+    cut_moved_m3: float | None = Field(default=None, description="cut to design removed since the previous survey: "
+                                       "its cut minus this one's (negative: more cut to do than before)")
+    fill_placed_m3: float | None = Field(default=None, description="fill to design placed since the previous "
+                                         "survey: its fill minus this one's")
+    net_change_m3: float | None = Field(default=None, description="this net minus the previous net")
+    sigma_m3: dict[str, float | None] = Field(default_factory=dict,
+                                              description="1 sigma of cut_moved_m3, fill_placed_m3, net_change_m3")
+    remaining_cut_m3: float | None = Field(default=None, description="cut still to remove (this survey's cut)")
+    remaining_fill_m3: float | None = Field(default=None, description="fill still to place (this survey's fill)")
+    done_share: dict[str, float | None] = Field(default_factory=dict, description="cut_m3, fill_m3: share of the "
+                                                "first compared survey's cut (fill) done by this survey")
+    notes: list[str] = Field(default_factory=list)

@@ -84,7 +84,7 @@ class CheckOut(BaseModel):
 
 # file_kinds.HINTS (GET /file-kinds), and the underscore spellings of earlier versions (HINT_ALIASES)
 UploadKind = Literal["rover", "base", "nav", "images", "image", "events", "points", "gcp-list", "survey-metadata",
-                     "archive", "flight", "gcp_list", "survey_metadata"]
+                     "archive", "flight", "gcp_list", "survey_metadata", "site-calibration"]
 
 
 class UploadIn(BaseModel):

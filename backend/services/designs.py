@@ -14,6 +14,7 @@ from sqlalchemy import select
 
 from ..core.problems import NotFound, Unprocessable
 from ..models import Run, RunStep, SiteDesign, Survey
+from ..schemas.designs import DesignChange
 from .context import Ctx
 from .permissions import require_site
 from .sites import check_if_match
@@ -211,6 +212,60 @@ def design_context(s, site_id: str) -> dict | None:
             "area": d.area, "tolerance_m": d.tolerance_m, "key": design_key(d), "name": Path(d.filename).stem}
 
 
+def _num(v) -> float | None:
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
+
+
+def change_between(prev: dict, cur: dict, first: dict) -> dict:
+    """``cur`` against ``prev`` (two design-progress entries, prev flown earlier; ``first``: the first
+    compared survey): cut removed and fill placed toward the design since prev, the net's change, their 1 sigma,
+    what remains and the share done since the first survey (schemas.designs.DesignChange).
+
+    Sigma of a change a_cur - a_prev: each survey's own error (DSM noise, vertical bias of its georeferencing,
+    unmeasured area) is independent of the other's; the design's own error (``design_sigma_m3``) is the same
+    surface under both, so only the change of its share counts: var = (s_p^2 - d_p^2) + (s_c^2 - d_c^2) +
+    (d_c - d_p)^2. Entries without ``design_sigma_m3`` (results older than it) count their sigmas independent."""
+    def diff(key, sign):
+        a, b = _num(prev.get(key)), _num(cur.get(key))
+        return None if a is None or b is None else sign * (b - a)
+
+    def sigma(key):
+        sp, sc = _num((prev.get("sigma_m3") or {}).get(key)), _num((cur.get("sigma_m3") or {}).get(key))
+        if sp is None or sc is None:
+            return None
+        dp = _num((prev.get("design_sigma_m3") or {}).get(key)) or 0.0
+        dc = _num((cur.get("design_sigma_m3") or {}).get(key)) or 0.0
+        return math.sqrt(max(sp * sp - dp * dp, 0.0) + max(sc * sc - dc * dc, 0.0) + (dc - dp) ** 2)
+
+    def done(key):
+        f, c = _num(first.get(key)), _num(cur.get(key))
+        return None if f is None or c is None or f <= 0 else (f - c) / f
+
+    days = None
+    if prev.get("flown_at") and cur.get("flown_at"):
+        days = (cur["flown_at"] - prev["flown_at"]).total_seconds() / 86400.0
+    notes = []
+    if prev.get("surface") != cur.get("surface"):
+        notes.append(f"the surveys compared different surfaces with the design ({prev.get('surface')} then "
+                     f"{cur.get('surface')}): machines and vegetation on a DSM count as cut")
+    if days is None:
+        notes.append("a flight date is missing: surveys without one are listed after the dated ones")
+    return DesignChange(
+        previous_survey_id=prev["survey_id"], previous_survey_name=prev["survey_name"], days=days,
+        cut_moved_m3=diff("cut_m3", -1), fill_placed_m3=diff("fill_m3", -1), net_change_m3=diff("net_m3", 1),
+        sigma_m3={"cut_moved_m3": sigma("cut_m3"), "fill_placed_m3": sigma("fill_m3"),
+                  "net_change_m3": sigma("net_m3")},
+        remaining_cut_m3=_num(cur.get("cut_m3")), remaining_fill_m3=_num(cur.get("fill_m3")),
+        done_share={"cut_m3": done("cut_m3"), "fill_m3": done("fill_m3")}, notes=notes).model_dump()
+
+
+def add_changes(entries: list[dict]) -> None:
+    """Each entry (oldest flight first) gets ``since_previous``: change_between it and the entry before it
+    (None for the first)."""
+    for i, e in enumerate(entries):
+        e["since_previous"] = change_between(entries[i - 1], e, entries[0]) if i else None
+
+
 def design_progress(ctx: Ctx, site_id: str) -> dict:
     """The site's design against every survey's latest successful run that compared with it (this file,
     surface and area), oldest flight first: cut, fill, net with their 1-sigma, on-grade share. Surveys
@@ -246,13 +301,17 @@ def design_progress(ctx: Ctx, site_id: str) -> dict:
         entry = {**base, "run_id": run_id, "run_number": number, "processed_at": finished_at}
         entry.update({k: summary.get(k) for k in PROGRESS_KEYS})
         entry["sigma_m3"] = summary.get("sigma_m3") or {}
+        entry["design_sigma_m3"] = summary.get("design_sigma_m3") or {}
         entry["warnings"] = summary.get("warnings") or []
         entries.append(entry)
     order = lambda e: (e["flown_at"] is None, e["flown_at"].isoformat() if e["flown_at"] else "", e["survey_name"])  # noqa: E731
     entries.sort(key=order)
     missing.sort(key=order)
+    add_changes(entries)
     return {"design": {"filename": d.filename, "format": d.format, "sha256": d.sha256, "key": key,
                        "surface_name": d.surface_name, "area_m2": _area_m2(d.area), "tolerance_m": d.tolerance_m},
             "conventions": "cut_m3: surveyed above design (to remove); fill_m3: below design (to place); net_m3 = "
-                           "cut - fill; sigma_m3: 1 sigma; on_grade_share: share of the area within +- tolerance_m",
+                           "cut - fill; sigma_m3: 1 sigma; on_grade_share: share of the area within +- tolerance_m; "
+                           "since_previous: cut_moved_m3 (cut removed) and fill_placed_m3 since the survey before, "
+                           "remaining_cut_m3 / remaining_fill_m3 still to do",
             "surveys": entries, "not_compared": missing}

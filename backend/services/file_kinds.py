@@ -28,7 +28,7 @@ HEAD_BYTES = 65536
 TEXT_TABLE_MAX_BYTES = 50 * 1024**2
 
 KINDS = ("rinex-obs", "rinex-nav", "ubx", "rtcm3", "dji-mrk", "image", "events", "points", "gcp-list",
-         "survey-metadata", "archive")
+         "survey-metadata", "archive", "site-calibration")
 OBSERVATION_KINDS = ("rinex-obs", "ubx", "rtcm3")          # files with a role (rover or base)
 # what a DJI flight folder holds that the pipeline reads: photos, the Timestamp.MRK, the aircraft's raw
 # GNSS log (RTCM 3 PPKRAW.bin, UBX, its own Rinex.obs) and a navigation file written beside them
@@ -46,6 +46,7 @@ HINTS = {
     "gcp-list": ("gcp-list",),
     "survey-metadata": ("survey-metadata",),
     "archive": ("archive",),
+    "site-calibration": ("site-calibration",),
 }
 # the spellings of earlier API versions, still accepted from clients
 HINT_ALIASES = {"gcp_list": "gcp-list", "survey_metadata": "survey-metadata"}
@@ -54,6 +55,8 @@ KIND_WORDS = {
     "rtcm3": "an RTCM 3 log", "dji-mrk": "a DJI Timestamp.MRK (camera exposures)",
     "image": "an image (JPEG/TIFF)", "events": "a camera-event CSV", "points": "a control/check points CSV",
     "gcp-list": "an ODM gcp_list.txt", "survey-metadata": "a survey.json", "archive": "a zip archive",
+    "site-calibration": "a site calibration (the JSON of georef datum calibrate, or a CSV of control pairs with "
+                        "local_e_m, local_n_m, local_h_m)",
 }
 
 
@@ -625,6 +628,25 @@ def _describe_unknown(head: bytes) -> str:
     return f"text starting with {first!r}"
 
 
+_PAIRS_HEADER = re.compile(r"(^|[,;\s])local_(e|e_m|x|easting_m)\s*([,;\s]|$)")
+
+
+def _calibration_meta(path: Path, doc: dict | None) -> dict:
+    """A site calibration as the datum step reads it (georef_core.datums.site_calibration): the JSON's
+    parameters, or the control pairs of a CSV (solved in the step)."""
+    from georef_core.datums.site_calibration import calibration_from_dict, read_control_pairs
+    from georef_core.errors import InputFileError
+
+    try:
+        if doc is not None:
+            cal = calibration_from_dict(doc, path.name)
+            return {"format": "json", "points": len(cal.pairs), "height_datum": cal.height_datum, "crs": cal.crs}
+        pairs = read_control_pairs(path)
+    except InputFileError as exc:
+        raise UnrecognisedFile(f"site calibration: {exc.problem}" + (f" (line {exc.line})" if exc.line else "")) from None
+    return {"format": "csv", "points": len(pairs)}
+
+
 def recognise(path, name: str = "") -> Recognised:
     path = Path(path)
     raw = _read_head(path)
@@ -679,6 +701,8 @@ def recognise(path, name: str = "") -> Recognised:
             raise UnrecognisedFile("JSON nested too deeply to be a survey.json") from None
         if not isinstance(obj, dict):
             raise UnrecognisedFile("JSON that is not an object")
+        if obj.get("format") == "georef-site-calibration":
+            return Recognised("site-calibration", _calibration_meta(path, obj))
         return Recognised("survey-metadata", {"keys": sorted(obj)[:50]})
     text = _read_table_text(path)
     first = next((ln for ln in text.splitlines() if ln.strip() and not ln.startswith("#")), "")
@@ -688,6 +712,8 @@ def recognise(path, name: str = "") -> Recognised:
             return Recognised("gcp-list", parse_gcp_list(text))
         except ValueError as exc:
             raise UnrecognisedFile(f"ODM gcp_list.txt: {exc}") from None
+    if _PAIRS_HEADER.search(low):   # control pairs: a points-like table with the local grid's columns
+        return Recognised("site-calibration", _calibration_meta(path, None))
     # a points table is what the georef step reads as one (the core's column names: name/id, easting/x, ...)
     try:
         pts = parse_points_csv(text)

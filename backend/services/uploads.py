@@ -37,7 +37,7 @@ from .permissions import require_survey, require_upload
 
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._+\-() ]")
-LAYOUT_FOLDERS = ("rover", "base", "nav", "images", "gcp", "flights")
+LAYOUT_FOLDERS = ("rover", "base", "nav", "images", "gcp", "flights", "calibration")
 FLIGHTS_FOLDER = "flights"
 # DJI names the files of a flight folder <folder>_Timestamp.MRK, <folder>_PPKRAW.bin, <folder>_Rinex.obs ...
 _DJI_FLIGHT_FILE = re.compile(r"^(.+?)_(Timestamp\.MRK|PPKRAW\.bin|PPKNAV\.nav|Rinex\.obs|EVENTLOG\.bin)$",
@@ -237,6 +237,8 @@ def _place(kind: str, name: str, role: str | None, hint: str | None,
     base = posixpath.basename(name)
     if flight is not None:
         return f"{FLIGHTS_FOLDER}/{flight}/{base}", ("rover" if kind in file_kinds.OBSERVATION_KINDS else None)
+    if kind == "site-calibration":   # one calibration per survey (the datum step refuses two): fixed names
+        return ("calibration/pairs.csv" if base.lower().endswith(".csv") else "calibration/site_calibration.json"), None
     if kind == "dji-mrk":
         raise Refused("a DJI Timestamp.MRK belongs with its flight's photos: upload it with kind=flight and "
                       "folder=<the flight folder>, or zip the flight folder")
@@ -334,7 +336,7 @@ def _place_archive_members(members, hint: str | None, role: str | None, archive_
             ignored.append({"name": m.name, "reason": f"outside the survey folder layout ({top}/)"})
             continue
         expected = {"rover": file_kinds.HINTS["rover"], "base": file_kinds.HINTS["base"], "nav": file_kinds.HINTS["nav"],
-                    "images": ("image",), "gcp": ("points", "gcp-list"),
+                    "images": ("image",), "gcp": ("points", "gcp-list"), "calibration": ("site-calibration",),
                     FLIGHTS_FOLDER: ()}.get(top)
         if expected is not None and rec.kind not in expected:
             where = f"{top}/" if top != FLIGHTS_FOLDER else f"{posixpath.dirname(name)}/ (not a flight folder)"

@@ -22,6 +22,14 @@ residuals (so the posterior covariances are "honest"):
   ``C_i = A_i + R_i L + v_i dt`` (v_i the antenna velocity at the trigger);
 * surveyed control point coordinates with their covariance.
 
+Optionally (``gnss_flight`` and ``flight_offset_prior_cov_m2``), a common 3-D offset ``o_f`` of the GNSS
+camera positions of each flight f (battery; measured minus true), ``C_i = A_i - o_f + R_i L + v_i dt``, with a prior of zero
+mean and the given covariance over the stacked offsets (a part shared by every flight, e.g. an
+unsurveyed base position, plus a part of each flight's own: its ambiguity set, an RTK network's offset).
+The per-epoch PPK sigmas describe the epoch-to-epoch noise only; without the offsets the adjustment
+would average N correlated positions as if independent and report covariances that are too small.
+Control points estimate the offsets; without them the prior is propagated into every covariance.
+
 Solved by Levenberg-Marquardt on the normal equations with the points eliminated (Schur complement;
 the reduced camera system is dense and small). Robustness by iteratively reweighted least squares
 (Huber) on each image measurement and each GNSS epoch; observations whose normalised residual stays
@@ -88,6 +96,26 @@ class BundleProblem:
     readout_s: float | np.ndarray = 0.0
     # several cameras: the camera group (row of ``intrinsics``) of each image (N,); None: all group 0
     camera_group: np.ndarray | None = None
+    # per-flight GNSS offsets (module docstring): the flight (0..F-1) of each GNSS position (K,), the
+    # prior covariance of the stacked offsets (3F, 3F; ENU, m^2, about zero) and their current values (F, 3);
+    # None: no offsets (every GNSS position independent)
+    gnss_flight: np.ndarray | None = None
+    flight_offset_prior_cov_m2: np.ndarray | None = None
+    flight_offset_enu_m: np.ndarray | None = None
+
+    @property
+    def n_flights(self) -> int:
+        """Number of modelled per-flight GNSS offsets (0: not modelled)."""
+        if self.gnss_flight is None or self.flight_offset_prior_cov_m2 is None or len(self.gnss_camera) == 0:
+            return 0
+        return int(np.max(self.gnss_flight)) + 1
+
+    def offsets(self) -> np.ndarray:
+        """(F, 3) the current per-flight offsets (zeros where not yet set)."""
+        F = self.n_flights
+        if self.flight_offset_enu_m is None or np.shape(self.flight_offset_enu_m) != (F, 3):
+            return np.zeros((F, 3))
+        return np.asarray(self.flight_offset_enu_m, float)
 
     @property
     def n_groups(self) -> int:
@@ -133,6 +161,7 @@ class BundleOptions:
     min_gnss_sigma_m: float = 0.005  # floor added in quadrature to the PPK sigma (timing, interpolation)
     tolerance: float = 1e-6       # relative cost decrease to stop
     initial_variances: dict | None = None  # variance factors to start from (e.g. from a previous adjustment)
+    cov_points: tuple = ()        # further point indices (e.g. tie points) whose posterior covariance to return
 
 
 @dataclass
@@ -148,9 +177,14 @@ class BundleResult:
     camera_cov: np.ndarray         # (N, 6, 6): rotation (rad, world axes) and centre (m)
     obs_outlier: np.ndarray        # (M,) bool
     gnss_outlier: np.ndarray       # (K,) bool
-    gnss_residual_enu_m: np.ndarray  # (K, 3) C - (A + R L + v dt)
+    gnss_residual_enu_m: np.ndarray  # (K, 3) C - (A + R L + v dt) (+ o_flight where modelled)
     obs_residual_px: np.ndarray    # (M, 2)
     point_cov_enu_m2: dict = field(default_factory=dict)  # point index -> (3, 3) for control points
+    # per-flight GNSS offsets, where modelled: values (F, 3), their covariance (3F, 3F) and each camera
+    # centre's covariance with them (N, 3, 3F)
+    flight_offset_enu_m: np.ndarray | None = None
+    flight_offset_cov_m2: np.ndarray | None = None
+    camera_flight_cov_m2: np.ndarray | None = None
 
     @property
     def global_sigma(self) -> np.ndarray:
@@ -195,12 +229,26 @@ class _Layout:
                     self.readout_cols[g] = len(names)
                     names += ["readout" if G == 1 else f"cam{g + 1}.readout"]
         self.readout = bool(np.any(self.readout_cols >= 0))
+        # per-flight GNSS offsets (E, N, U of each flight)
+        self.n_flights = prob.n_flights
+        self.flight_col = len(names)
+        for f in range(self.n_flights):
+            names += [f"flight{f + 1}.offset_e", f"flight{f + 1}.offset_n", f"flight{f + 1}.offset_u"]
         self.names = names
         self.n_global = len(names)
         self.n_cam = len(prob.centre_enu_m)
         self.cam0 = self.n_global
         self.nx = self.n_global + 6 * self.n_cam
         self.n_pts = len(prob.points_enu_m)
+
+
+def flight_offset_prior_cov(n_flights: int, common_sigma_enu_m, flight_sigma_enu_m) -> np.ndarray:
+    """(3F, 3F) prior covariance of F stacked per-flight GNSS offsets (E, N, U each): a part shared by every
+    flight (``common_sigma_enu_m``, e.g. the base position's sigma when the base is not surveyed) plus an
+    independent part of each flight's own (``flight_sigma_enu_m``: its ambiguity set, an RTK network offset)."""
+    common = np.diag(np.asarray(common_sigma_enu_m, float) ** 2 * np.ones(3))
+    own = np.diag(np.asarray(flight_sigma_enu_m, float) ** 2 * np.ones(3))
+    return np.kron(np.ones((n_flights, n_flights)), common) + np.kron(np.eye(n_flights), own)
 
 
 def row_offset_per_readout(v_px: np.ndarray, image_height_px: float) -> np.ndarray:
@@ -235,14 +283,17 @@ def _reprojection(prob: BundleProblem, intr=None, R=None, C=None, X=None, readou
     return project_camera_points(p, prob.per_obs(intr), prob.fisheye), p, d, Rw2c
 
 
-def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None):
+def _gnss_residual(prob: BundleProblem, R=None, C=None, lever=None, delay=None, offsets=None):
     R = prob.R_cam_to_enu if R is None else R
     C = prob.centre_enu_m if C is None else C
     lever = prob.lever_arm_cam_m if lever is None else lever
     delay = prob.delay_s if delay is None else delay
     i = prob.gnss_camera
     a = np.einsum("kij,j->ki", R[i], lever)
-    return C[i] - prob.antenna_enu_m - a - prob.antenna_velocity_enu_m_s * delay, a
+    g = C[i] - prob.antenna_enu_m - a - prob.antenna_velocity_enu_m_s * delay
+    if prob.n_flights:
+        g = g + (prob.offsets() if offsets is None else offsets)[np.asarray(prob.gnss_flight, int)]
+    return g, a
 
 
 def _jacobi_scaled(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -302,21 +353,42 @@ class BundleAdjuster:
         self.w_obs = np.ones(len(p.obs_camera))
         self.w_gnss = np.ones(len(p.gnss_camera))
         self.w_ctl = np.ones(len(p.control_point))
+        # whitener of the per-flight offsets' prior: W^T W = prior covariance^-1
+        self.flight_W = None
+        if self.lay.n_flights:
+            F = self.lay.n_flights
+            cov = np.asarray(p.flight_offset_prior_cov_m2, float)
+            if cov.shape != (3 * F, 3 * F):
+                raise ProcessingError(f"the per-flight GNSS offsets' prior covariance is {cov.shape}, expected "
+                                      f"({3 * F}, {3 * F}) for {F} flight(s)")
+            try:
+                self.flight_W = np.linalg.cholesky(np.linalg.inv(cov)).T
+            except np.linalg.LinAlgError:
+                raise ProcessingError("the per-flight GNSS offsets' prior covariance is not positive definite "
+                                      "(a zero sigma? leave the offsets out instead)") from None
+            p.flight_offset_enu_m = p.offsets().copy()
 
     # ----------------------------------------------------------------------------------- residuals
     def _normalised(self, state=None):
         p = self.prob
-        R, C, X, intr, lever, delay, readout = state if state is not None else (
-            p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s)
+        R, C, X, intr, lever, delay, readout, off = state if state is not None else (
+            p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s,
+            p.offsets())
         uv, *_ = _reprojection(p, intr, R, C, X, readout)
         r_obs = (uv - p.obs_uv_px) / (p.obs_sigma_px * np.sqrt(self.var["image"]))[:, None]
         Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
-        g, _ = _gnss_residual(p, R, C, lever, delay)
+        g, _ = _gnss_residual(p, R, C, lever, delay, off)
         r_g = np.einsum("kij,kj->ki", Ug, g)
         Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"])
         r_c = np.einsum("qij,qj->qi", Uc, X[p.control_point] - p.control_enu_m)
-        self._r_prior = np.concatenate([self._lever_prior_residual(lever), self._intrinsics_prior_residual(intr)])
+        self._r_prior = np.concatenate([self._lever_prior_residual(lever), self._intrinsics_prior_residual(intr),
+                                        self._flight_prior_residual(off)])
         return r_obs, r_g, r_c
+
+    def _flight_prior_residual(self, off) -> np.ndarray:
+        if self.flight_W is None:
+            return np.zeros(0)
+        return self.flight_W @ np.asarray(off, float).reshape(-1)
 
     def _lever_prior_residual(self, lever) -> np.ndarray:
         p = self.prob
@@ -445,7 +517,19 @@ class BundleAdjuster:
                 rows.append(g_rows.reshape(-1))
                 cols.append(np.full(3 * K, lay.delay_col))
                 vals.append(Jd.reshape(-1))
+            if lay.n_flights:   # d(residual)/d(offset of the position's flight) = U
+                fcol = lay.flight_col + 3 * np.asarray(p.gnss_flight, int)
+                rows.append(np.repeat(g_rows[:, :, None], 3, 2).reshape(-1))
+                cols.append(np.broadcast_to((fcol[:, None] + np.arange(3))[:, None, :], (K, 3, 3)).reshape(-1))
+                vals.append(U.reshape(-1))
             n_rows += 3 * K
+        if self.flight_W is not None:
+            nf = 3 * lay.n_flights
+            r_all.append(self._flight_prior_residual(p.offsets()))
+            rows.append(np.repeat(n_rows + np.arange(nf), nf))
+            cols.append(np.tile(lay.flight_col + np.arange(nf), nf))
+            vals.append(self.flight_W.reshape(-1))
+            n_rows += nf
         rp = self._lever_prior_residual(p.lever_arm_cam_m)
         if len(rp):
             r_all.append(rp)
@@ -525,15 +609,21 @@ class BundleAdjuster:
                 for g, c in enumerate(lay.readout_cols):
                     if c >= 0:
                         readout[g] += dx[c]
+        off = p.offsets()
+        if lay.n_flights:
+            off = off + dx[lay.flight_col:lay.flight_col + 3 * lay.n_flights].reshape(-1, 3)
         cam = dx[lay.cam0:].reshape(-1, 6)
         R = Rotation.from_rotvec(cam[:, :3]).as_matrix() @ p.R_cam_to_enu
         C = p.centre_enu_m + cam[:, 3:]
         X = p.points_enu_m + dp.reshape(-1, 3)
-        return R, C, X, intr, lever, float(delay), (float(readout) if np.ndim(readout) == 0 else readout)
+        return R, C, X, intr, lever, float(delay), (float(readout) if np.ndim(readout) == 0 else readout), off
 
     def _commit(self, state):
         p = self.prob
-        p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s = state
+        (p.R_cam_to_enu, p.centre_enu_m, p.points_enu_m, p.intrinsics, p.lever_arm_cam_m, p.delay_s, p.readout_s,
+         off) = state
+        if self.lay.n_flights:
+            p.flight_offset_enu_m = off
 
     def _reweight(self):
         r_obs, r_g, r_c = self._normalised()
@@ -608,6 +698,10 @@ class BundleAdjuster:
                 if lay.delay:
                     cols.append(lay.delay_col)
                     J = np.concatenate([J, -(Ug[k] @ p.antenna_velocity_enu_m_s[k])[:, None]], axis=1)
+                if lay.n_flights:
+                    f0 = lay.flight_col + 3 * int(p.gnss_flight[k])
+                    cols += list(range(f0, f0 + 3))
+                    J = np.concatenate([J, Ug[k]], axis=1)
                 h_g += float(np.trace(J @ Sinv[np.ix_(cols, cols)] @ J.T))
         h_c = 0.0
         if Q:
@@ -652,14 +746,21 @@ class BundleAdjuster:
         g_vals = np.concatenate([np.asarray(p.intrinsics, float).reshape(-1, 8)[lay.intr_free],
                                  p.lever_arm_cam_m if lay.lever else [],
                                  [p.delay_s] if lay.delay else [],
-                                 readouts[lay.readout_cols >= 0]])
+                                 readouts[lay.readout_cols >= 0], p.offsets().reshape(-1)])
         G = lay.n_global
         cam_cov = np.stack([Sinv[lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6, lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6]
                             for i in range(lay.n_cam)])
         g, _ = _gnss_residual(p)
-        pcov = {int(j): self._point_cov(int(j), Sinv, Dinv, B) for j in p.control_point}
+        pcov = {int(j): self._point_cov(int(j), Sinv, Dinv, B)
+                for j in list(p.control_point) + list(self.opt.cov_points)}
         sig0 = {k: float(np.sqrt(v)) for k, v in self.var.items()}
-        return BundleResult(problem=p, iterations=iters, converged=converged, rms_reprojection_px=rms, sigma0=sig0,
+        fl = {}
+        if lay.n_flights:
+            fc = slice(lay.flight_col, lay.flight_col + 3 * lay.n_flights)
+            fl = {"flight_offset_enu_m": p.offsets().copy(), "flight_offset_cov_m2": Sinv[fc, fc].copy(),
+                  "camera_flight_cov_m2": np.stack([Sinv[lay.cam0 + 6 * i + 3: lay.cam0 + 6 * i + 6, fc]
+                                                    for i in range(lay.n_cam)])}
+        return BundleResult(**fl, problem=p, iterations=iters, converged=converged, rms_reprojection_px=rms, sigma0=sig0,
                             global_names=list(lay.names), global_values=g_vals, global_cov=Sinv[:G, :G].copy(),
                             camera_cov=cam_cov, obs_outlier=obs_out, gnss_outlier=gnss_out, gnss_residual_enu_m=g,
                             obs_residual_px=res_px, point_cov_enu_m2=pcov)

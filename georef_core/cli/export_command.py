@@ -28,6 +28,9 @@ def register(sub) -> None:
     p.add_argument("--tin-spacing", type=float, metavar="M", help="LandXML TIN vertex spacing, metres (default: "
                                                                   "0.5 m or more, at most 250 000 vertices)")
     p.add_argument("--geojson-crs", choices=("wgs84", "site"), default="wgs84")
+    p.add_argument("--kmz-tile-px", type=int, default=2048, metavar="PX",
+                   help="an orthophoto longer than this is written to the KMZ as tiles (a super-overlay), "
+                        "else as one image (2048)")
     p.add_argument("--json", action="store_true", help="print the manifest as JSON")
     p.set_defaults(func=cmd_export)
 
@@ -37,7 +40,8 @@ def cmd_export(args) -> int:
 
     formats = [f.strip() for v in (args.format or []) for f in v.split(",") if f.strip()] or None
     m = export_run(args.out_dir, args.to, formats, args.interval, args.surface, args.survey, args.index_every,
-                   tin_spacing_m=args.tin_spacing, geojson_crs=args.geojson_crs)
+                   tin_spacing_m=args.tin_spacing, geojson_crs=args.geojson_crs,
+                   kmz_tile_threshold_px=args.kmz_tile_px)
     if args.json:
         print(json.dumps(m, indent=1, default=str))
         return 0

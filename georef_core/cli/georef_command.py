@@ -54,6 +54,13 @@ def register(sub) -> None:
     p.add_argument("--readout-ms", type=float, metavar="MS",
                    help="rolling-shutter readout time, first to last row (ms), held fixed; implies --rolling-shutter "
                         "(default: estimated in the adjustment for a rolling-shutter camera)")
+    p.add_argument("--flight-offsets", choices=("auto", "on", "off"), default="auto",
+                   help="a common GNSS offset per flight (battery) with a prior, in the joint adjustment (default auto: "
+                        "with two or more flights or an unsurveyed base)")
+    p.add_argument("--flight-offset-sigma", metavar="H,V", default=None,
+                   help="each flight's own offset sigma, horizontal and vertical (m; default 0.01,0.015)")
+    p.add_argument("--flight-gap", type=float, metavar="S", default=120.0,
+                   help="without flight folders, a gap of more than S seconds between photos starts a flight (120)")
     p.set_defaults(func=cmd_georef)
 
 
@@ -87,7 +94,15 @@ def cmd_georef(args) -> int:
                          refine_targets=not args.no_target_refinement, leave_one_out=not args.no_leave_one_out,
                          max_tie_points=args.max_tie_points, num_threads=args.threads, reuse=not args.rerun,
                          exif_time_offset_s=args.exif_time_offset, rolling_shutter=args.rolling_shutter,
-                         readout_s=None if args.readout_ms is None else args.readout_ms / 1000.0)
+                         readout_s=None if args.readout_ms is None else args.readout_ms / 1000.0,
+                         flight_offsets=args.flight_offsets, flight_gap_s=args.flight_gap)
+    if args.flight_offset_sigma:
+        try:
+            h, v = (float(x) for x in args.flight_offset_sigma.split(","))
+        except ValueError:
+            print(f"georef: --flight-offset-sigma {args.flight_offset_sigma!r}: two numbers H,V (m)", file=sys.stderr)
+            return 2
+        opts.flight_offset_sigma_m = (h, v)
 
     def progress(stage, done, total):
         if total:

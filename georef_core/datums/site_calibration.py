@@ -142,6 +142,16 @@ class SiteCalibration:
                        for p, r in zip(self.pairs, self.residuals())],
             "statistics": self.statistics()}
 
+    def summary(self) -> dict:
+        """What a step summary keeps: the parameters, their sigmas, the residuals per point (no coordinates)
+        and their statistics."""
+        d = self.to_dict()
+        return {"name": self.name, "crs": self.crs, "height_datum": self.height_datum,
+                "horizontal": {k: d["horizontal"][k] for k in ("scale", "scale_ppm", "rotation_deg", "origin_source_m",
+                                                               "origin_local_m")},
+                "vertical": {k: d["vertical"][k] for k in ("model", "constant_m", "slope_north", "slope_east")},
+                "sigmas": dict(self.sigmas), "residuals": self.residuals(), "statistics": self.statistics()}
+
     def write(self, path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -249,6 +259,13 @@ def read_calibration(path) -> SiteCalibration:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputFileError(path, f"not a JSON file ({exc})") from None
+    return calibration_from_dict(doc, path)
+
+
+def calibration_from_dict(doc, where) -> SiteCalibration:
+    """A calibration from its JSON document (SiteCalibration.to_dict); ``where`` names it in the
+    InputFileError (a file, or the setting that held it)."""
+    path = where
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise InputFileError(path, f"not a site calibration (its 'format' is not {FORMAT!r})")
     if doc.get("version") != 1:

@@ -1,14 +1,18 @@
 """DXF drawings (ezdxf, AutoCAD 2013 format) of polylines, points and texts on named layers: contours,
 outlines, surveyed points, design-difference polylines (any caller: ``write_dxf``).
 
-DXF has no coordinate reference system: coordinates are written as they are (CRS easting, northing and
-height, metres: $INSUNITS = 6) and a companion ``<name>.prj`` (ESRI WKT of the horizontal CRS) is written
-beside the drawing, which QGIS and Global Mapper read (AutoCAD Map / Civil 3D: assign the CRS by its EPSG
-code). The CRS and the vertical datum are also stated in the drawing's custom header properties
-``GEOREF_CRS`` and ``GEOREF_VERTICAL_DATUM`` (AutoCAD: DWGPROPS, Custom)."""
+Coordinates are written as they are (CRS easting, northing and height, metres: $INSUNITS = 6). The CRS
+travels three ways: the model space's GEODATA object (AutoCAD's geographic location, DXF R2010+: a local
+grid whose design point and reference point coincide, so drawing coordinates *are* CRS coordinates, units
+metres, north up, with the coordinate-system definition as the XML dictionary AutoCAD stores, carrying the
+EPSG code, the projection and its parameters, the datum and the ellipsoid: :func:`geodata_xml`); a
+companion ``<name>.prj`` (ESRI WKT of the horizontal CRS) beside the drawing, which QGIS and Global Mapper
+read; and the drawing's custom header properties ``GEOREF_CRS`` and ``GEOREF_VERTICAL_DATUM`` (AutoCAD:
+DWGPROPS, Custom)."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,6 +118,8 @@ def write_dxf(path, polylines=(), points=(), texts=(), crs=None, vertical_datum:
             t.set_placement((x, y, z), align=TextEntityAlignment.MIDDLE_CENTER)
         else:
             t.set_placement((x, y, z))
+    if crs is not None:
+        add_geodata(doc, crs, _centre(polylines, points, texts))
     doc.saveas(path)
     written = [path]
     if crs is not None:
@@ -134,3 +140,108 @@ def crs_label(crs) -> str:
     h = crs.sub_crs_list[0] if crs.is_compound else crs
     he = h.to_2d().to_epsg() if hasattr(h, "to_2d") else h.to_epsg()
     return f"EPSG:{he} (3-D: ellipsoidal heights)" if he else crs.name
+
+
+def _centre(polylines, points, texts) -> tuple[float, float]:
+    """The middle of the drawn entities' extent (x, y): the GEODATA design point."""
+    xy = [np.asarray(pl.xy_m, float)[:, :2] for pl in polylines]
+    xy += [np.array([[float(p.xyz_m[0]), float(p.xyz_m[1])]]) for p in points]
+    xy += [np.array([[float(t.xyz_m[0]), float(t.xyz_m[1])]]) for t in texts]
+    if not xy:
+        return 0.0, 0.0
+    a = np.concatenate(xy)
+    lo, hi = a.min(axis=0), a.max(axis=0)
+    return float((lo[0] + hi[0]) / 2), float((lo[1] + hi[1]) / 2)
+
+
+def add_geodata(doc, crs, design_point_xy=(0.0, 0.0)):
+    """Adds the model space's GEODATA object for a projected ``crs`` (pyproj; its horizontal part) in metres:
+    a local grid where the drawing's coordinates are the CRS's (design point = reference point, north up,
+    unit scale 1, no sea-level correction). Returns the GeoData, or None for a CRS that is not projected
+    in metres (nothing to say in AutoCAD's terms; the .prj still states it)."""
+    horiz = crs.sub_crs_list[0] if crs.is_compound else crs
+    if not horiz.is_projected or any((a.unit_name or "").lower() not in ("metre", "meter")
+                                     for a in horiz.axis_info[:2]):
+        return None
+    msp = doc.modelspace()
+    geo = msp.new_geodata({"block_record_handle": msp.block_record_handle})   # its host: the model space
+    x, y = (float(v) for v in design_point_xy)
+    geo.setup_local_grid(design_point=(x, y, 0.0), reference_point=(x, y, 0.0), north_direction=(0, 1),
+                         crs=geodata_xml(crs))
+    return geo
+
+
+def _x(text) -> str:
+    from xml.sax.saxutils import escape
+
+    return escape(str(text), {'"': "&quot;"})
+
+
+def geodata_xml(crs) -> str:
+    """The coordinate-system definition of a GEODATA object: the XML dictionary (namespace
+    http://www.osgeo.org/mapguide/coordinatesystem) that AutoCAD writes there, built from the pyproj CRS's
+    horizontal part: the projected system (name, EPSG code as an "EPSG Code" alias, easting/northing axes in
+    metres, the projection method and parameters), its geodetic datum and ellipsoid (each with its EPSG
+    alias where it has one). Georef's own writing of that format; readers that know the EPSG code (ezdxf's
+    GeoData.get_crs, AutoCAD) need nothing else."""
+    horiz = crs.sub_crs_list[0] if crs.is_compound else crs
+    h2 = horiz.to_2d() if hasattr(horiz, "to_2d") else horiz
+    epsg = h2.to_epsg()
+    if epsg:
+        from pyproj import CRS
+
+        h2 = CRS.from_epsg(epsg)         # to_2d() drops the datum's and ellipsoid's EPSG identifiers
+    name = (f"EPSG-{epsg}" if epsg else re.sub(r"[^A-Za-z0-9]+", "-", h2.name).strip("-")) or "SITE-CRS"
+    datum, ell = h2.datum, h2.ellipsoid
+    datum_id = re.sub(r"[^A-Za-z0-9]+", "-", datum.name).strip("-") or "DATUM"
+    ell_id = re.sub(r"[^A-Za-z0-9]+", "-", ell.name).strip("-") or "ELLIPSOID"
+
+    def code(obj):
+        ident = (obj.to_json_dict() or {}).get("id") or {}
+        return ident.get("code") if ident.get("authority") == "EPSG" else None
+
+    lines = ['<?xml version="1.0" encoding="UTF-16" standalone="no" ?>',
+             '<Dictionary version="1.0" xmlns="http://www.osgeo.org/mapguide/coordinatesystem">',
+             f'<ProjectedCoordinateSystem id="{_x(name)}">', f"<Name>{_x(name)}</Name>",
+             f"<Description>{_x(h2.name)}</Description>", "<Authority>EPSG</Authority>" if epsg else ""]
+    aou = h2.area_of_use
+    if aou is not None:
+        lines += ["<DomainOfValidity><Extent><GeographicElement><GeographicBoundingBox>",
+                  f"<WestBoundLongitude>{aou.west:g}</WestBoundLongitude>",
+                  f"<EastBoundLongitude>{aou.east:g}</EastBoundLongitude>",
+                  f"<SouthBoundLatitude>{aou.south:g}</SouthBoundLatitude>",
+                  f"<NorthBoundLatitude>{aou.north:g}</NorthBoundLatitude>",
+                  "</GeographicBoundingBox></GeographicElement></Extent></DomainOfValidity>"]
+    lines += [f"<DatumId>{_x(datum_id)}</DatumId>", '<Axis uom="Meter">']
+    for k, (nm, ab, d) in enumerate((("Easting", "E", "East"), ("Northing", "N", "North")), start=1):
+        lines.append(f"<CoordinateSystemAxis><AxisOrder>{k}</AxisOrder><AxisName>{nm}</AxisName>"
+                     f"<AxisAbbreviation>{ab}</AxisAbbreviation><AxisDirection>{d}</AxisDirection>"
+                     "</CoordinateSystemAxis>")
+    lines.append("</Axis>")
+    op = h2.coordinate_operation
+    if op is not None:
+        lines += ["<Conversion><Projection>", f"<OperationMethodId>{_x(op.method_name)}</OperationMethodId>"]
+        for p in op.params:
+            uom = {"degree": "degree", "metre": "Meter", "unity": "unity"}.get(p.unit_name, p.unit_name)
+            lines.append(f"<ParameterValue><OperationParameterId>{_x(p.name)}</OperationParameterId>"
+                         f'<Value uom="{_x(uom)}">{p.value!r}</Value></ParameterValue>')
+        lines.append("</Projection></Conversion>")
+    lines.append("</ProjectedCoordinateSystem>")
+    if epsg:
+        lines += [f'<Alias id="{epsg}" type="CoordinateSystem">', f"<ObjectId>{_x(name)}</ObjectId>",
+                  "<Namespace>EPSG Code</Namespace>", "</Alias>"]
+    lines += [f'<GeodeticDatum id="{_x(datum_id)}">', f"<Name>{_x(datum.name)}</Name>",
+              "<PrimeMeridianId>Greenwich</PrimeMeridianId>", f"<EllipsoidId>{_x(ell_id)}</EllipsoidId>",
+              "</GeodeticDatum>"]
+    if code(datum):
+        lines += [f'<Alias id="{code(datum)}" type="Datum">', f"<ObjectId>{_x(datum_id)}</ObjectId>",
+                  "<Namespace>EPSG Code</Namespace>", "</Alias>"]
+    lines += [f'<Ellipsoid id="{_x(ell_id)}">', f"<Name>{_x(ell.name)}</Name>",
+              f'<SemiMajorAxis uom="meter">{ell.semi_major_metre!r}</SemiMajorAxis>',
+              f'<SecondDefiningParameter><SemiMinorAxis uom="meter">{ell.semi_minor_metre!r}</SemiMinorAxis>'
+              "</SecondDefiningParameter>", "</Ellipsoid>"]
+    if code(ell):
+        lines += [f'<Alias id="{code(ell)}" type="Ellipsoid">', f"<ObjectId>{_x(ell_id)}</ObjectId>",
+                  "<Namespace>EPSG Code</Namespace>", "</Alias>"]
+    lines.append("</Dictionary>")
+    return "\n".join(x for x in lines if x)

@@ -16,7 +16,7 @@ dxf        site.dxf + site.prj: CONTOUR_MINOR, CONTOUR_INDEX, CONTOUR_LABEL, STO
 gpkg       site.gpkg: layers contours, stockpiles, points
 shp        shapefiles/{contours,stockpiles,points}.shp (+ .shx .dbf .prj .cpg) and shapefiles.zip
 landxml    surface.xml: the surveyed TIN (LandXML 1.2)
-kmz        ortho.kmz: the orthophoto as a Google Earth overlay
+kmz        ortho.kmz: the orthophoto as a Google Earth overlay (a tiled super-overlay when large)
 xlsx       site.xlsx: About, Points, Volumes
 csv        points.csv, volumes.csv
 =========  ==============================================================================================
@@ -302,7 +302,8 @@ VOLUME_COLUMNS = ["name", "base", "volume_m3", "cut_m3", "fill_m3", "area_m2", "
 def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = None, surface: str = "dsm",
                survey_dir=None, index_every: int = 5, smoothing_m: float | None = None,
                tin_spacing_m: float | None = None, geojson_crs: str = "wgs84", kmz_max_px: int = 4096,
-               heights: str = "site", progress=None) -> dict:
+               heights: str = "site", progress=None, kmz_tile_threshold_px: int = 2048,
+               kmz_max_tiles: int = 1024) -> dict:
     """Writes the requested ``formats`` (default all of FORMATS) of a run folder to ``out_dir`` (default
     ``run_dir/exports``) and ``exports.json``; returns that manifest: {"written": {format: [files]},
     "skipped": {format or item: why}, "contours": summary, "tin": summary, "crs", "vertical_datum"}."""
@@ -383,7 +384,8 @@ def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = N
             if data.ortho is None:
                 skipped[fmt] = "no orthophoto (dense/ortho.tif)"
                 continue
-            manifest["kmz"] = write_kmz(data.ortho, out / "ortho.kmz", kmz_max_px)
+            manifest["kmz"] = write_kmz(data.ortho, out / "ortho.kmz", kmz_max_px,
+                                        tile_threshold_px=kmz_tile_threshold_px, max_tiles=kmz_max_tiles)
             done(fmt, [out / "ortho.kmz"])
         elif fmt in ("xlsx", "csv"):
             tables = [t for t in (Table("Points", POINT_COLUMNS, data.points),

@@ -20,6 +20,7 @@ from .constants import CODE_PRIORITY, N_BANDS, RINEX_DIGIT_TO_BAND
 class ReceiverHeader:
     marker_name: str = ""
     receiver_type: str = ""
+    receiver_version: str = ""      # firmware: RINEX REC # / TYPE / VERS, RTCM 1033, UBX MON-VER
     antenna_type: str = ""
     approx_position_ecef_m: np.ndarray | None = None   # (3,) or None when absent / zero
     antenna_delta_hen_m: np.ndarray = field(default_factory=lambda: np.zeros(3))  # height, east, north

@@ -57,6 +57,8 @@ class PpkSolution:
     # the base position's error
     base_position_basis: dict = field(default_factory=dict)
     input_paths: dict[str, list[str]] = field(default_factory=dict)
+    # rover and base receiver/antenna models as their files state them (receiver_equipment.py)
+    equipment: dict[str, dict] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     timings_s: dict[str, float] = field(default_factory=dict)
 
@@ -346,7 +348,10 @@ def _blas_controller():
     call), built once: scanning the process's libraries costs ~1 ms per solve."""
     global _BLAS_CONTROLLER
     if _BLAS_CONTROLLER is None:
-        from scipy.linalg import cython_blas, cython_lapack  # noqa: F401 - load scipy's BLAS before the scan
+        # load scipy's BLAS before the scan; the submodules by their full names, so that tables the CLI loaded
+        # alone (cli/numba_start.py) are used as they are, without scipy.linalg's package __init__
+        import scipy.linalg.cython_blas  # noqa: F401
+        import scipy.linalg.cython_lapack  # noqa: F401
         from threadpoolctl import ThreadpoolController
 
         _BLAS_CONTROLLER = ThreadpoolController()
@@ -497,5 +502,9 @@ def solve_files(rover_path, base_path, nav_paths, opts: RtkOptions,
     load_s = _time.perf_counter() - t0
     sol = solve(rover.observations, base.observations, nav, opts, progress)
     sol.warnings[:0] = rover_notes + base_notes
+    from .receiver_equipment import equipment_of_loaded
+
+    sol.equipment = {"rover": equipment_of_loaded(rover, _as_paths(rover_path)),
+                     "base": equipment_of_loaded(base, _as_paths(base_path))}
     sol.timings_s["load"] = load_s
     return sol

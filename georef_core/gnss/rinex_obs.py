@@ -212,6 +212,7 @@ class _Header:
             info.marker_name = line[:60].strip()
         elif label == "REC # / TYPE / VERS":
             info.receiver_type = line[20:40].strip()
+            info.receiver_version = line[40:60].strip()
         elif label == "ANT # / TYPE":
             info.antenna_type = line[20:40].strip()
         elif label == "APPROX POSITION XYZ":

@@ -494,6 +494,7 @@ def decode_rtcm3_bytes(data: bytes, source_path: str = "<bytes>", *, approx_gps_
 
     header = ReceiverHeader(rinex_version=None)
     header.receiver_type = station.receiver_type or "RTCM 3 stream"
+    header.receiver_version = station.receiver_firmware
     header.antenna_type = station.antenna_descriptor
     header.marker_name = f"{station.station_id:04d}" if station.station_id is not None else ""
     if station.arp_ecef_m is not None:

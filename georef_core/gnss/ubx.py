@@ -644,6 +644,8 @@ def _receiver_header(data: bytes, frames: UbxFrames, meas: _Measurements | None)
         hw = data[p0 + 30:p0 + 40].split(b"\0")[0].decode("ascii", "replace")
         model = next((t[4:] for t in text if t.startswith("MOD=")), "")
         header.receiver_type = f"u-blox {model or hw}".strip()
+        sw = data[p0:p0 + 30].split(b"\0")[0].decode("ascii", "replace").strip()
+        header.receiver_version = next((t[6:] for t in text if t.startswith("FWVER=")), sw)
     else:
         header.receiver_type = "u-blox"
     pts = []

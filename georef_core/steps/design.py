@@ -56,6 +56,10 @@ def summary_of(doc: dict) -> dict:
     """What the step's summary keeps of cut_fill.json (the platform's progress list reads it)."""
     out = {k: doc[k] for k in SUMMARY_KEYS if k in doc}
     out.update(sigma_m3={k: doc["uncertainty"][k]["sigma_m3"] for k in ("cut_m3", "fill_m3", "net_m3")},
+               # the design's own share of each sigma: common to every survey compared with the same design, so
+               # it does not add in quadrature in a change between surveys (the platform's design-progress)
+               design_sigma_m3={k: doc["uncertainty"][k]["components_m3"].get("design_m3", 0.0)
+                                for k in ("cut_m3", "fill_m3", "net_m3")},
                on_grade_share=doc["on_grade"]["share"], on_grade_expected_share=doc["on_grade"]["expected_share"],
                not_significant_m2=doc["classes_m2"]["not_significant"],
                sigma_cell_m=doc["significance"]["sigma_cell_m"], design=doc["design"]["name"],

@@ -31,7 +31,8 @@ def step_entry(workspace, options: dict, progress, context: dict) -> dict:
     m = export_run(workspace.out_dir, out, parse_formats(opts.get("formats")), opts.get("interval_m"),
                    opts.get("surface") or "dsm", workspace.survey_dir, opts.get("index_every") or 5,
                    opts.get("smoothing_m"), opts.get("tin_spacing_m"), opts.get("geojson_crs") or "wgs84",
-                   heights=opts.get("heights") or "site", progress=progress)
+                   heights=opts.get("heights") or "site", progress=progress,
+                   kmz_tile_threshold_px=opts.get("kmz_tile_px") or 2048)
     return {"written": m["written"], "skipped": m["skipped"], "crs": m["crs"], "vertical_datum": m["vertical_datum"],
             "contours": {k: m["contours"][k] for k in ("interval_m", "lines", "index_lines")} if "contours" in m
             else None, "tin": m.get("tin")}

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from ..adjustment import camera_model as cm
-from ..adjustment.bundle_adjustment import BundleOptions, BundleProblem, adjust, rolling_shutter_shift
+from ..adjustment.bundle_adjustment import (BundleOptions, BundleProblem, adjust, flight_offset_prior_cov,
+                                            rolling_shutter_shift)
 from ..adjustment.control_points import ControlData, load_control, point_sigma_enu_cov, points_to_enu
 from ..adjustment.lever_arm_delay import estimate_lever_arm_delay, fit_similarity_delay
 from ..adjustment.residual_table import ResidualRow, ResidualTable
@@ -36,9 +37,10 @@ from ..adjustment.triangulation import find_blunders, triangulate
 from ..errors import InputFileError, ProcessingError
 from ..progress import ProgressFn
 from ..project_frame import ProjectFrame, utm_epsg_for
-from .exif_triggers import exif_trigger_times, trigger_csv_text
+from .exif_triggers import exif_trigger_times
 from .georef_options import (FACTORY_CALIBRATION_CHOICES, IMAGE_SUFFIXES, MODE_ALIASES, MODES,  # noqa: F401
-                             SFM_MODELS, GeorefOptions, georef_options_from_dict, validate_shutter_options)
+                             SFM_MODELS, GeorefOptions, georef_options_from_dict, validate_flight_options,
+                             validate_shutter_options)
 
 
 # Weights of a factory calibration used as a prior (GeorefOptions.factory_calibration = "prior"): focal
@@ -172,6 +174,7 @@ class ImageGnss:
     warnings: list[str] = field(default_factory=list)
     cov_ecef_m2: np.ndarray | None = None     # (N, 3, 3) full covariance where known (else sd_ecef_m, diagonal)
     from_photos: bool = False                 # positions read from the photos (XMP RTK / EXIF GPS), not PPK
+    kind: str = ""                            # photo positions: "rtk" or "exif-gps" (photo_positions.py)
 
 
 def _read_ppk_events(path: Path) -> dict[str, np.ndarray]:
@@ -272,7 +275,7 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     n = len(pp.names)
     sd = np.sqrt(np.abs(np.einsum("kii->ki", pp.cov_ecef_m2)))
     gnss = ImageGnss(pp.names, pp.time_gps_s, pp.position_ecef_m, np.zeros((n, 3)), sd, pp.status, pp.source,
-                     cov_ecef_m2=pp.cov_ecef_m2, from_photos=True)
+                     cov_ecef_m2=pp.cov_ecef_m2, from_photos=True, kind=str(pp.kind))
     if opts.lever_arm_cam_m is None:
         opts.lever_arm_cam_m = (0.0, 0.0, 0.0)
         opts.estimate_lever_arm = False
@@ -283,6 +286,63 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
                         "points the survey's absolute position is only as good as these positions (see "
                         "absolute_accuracy in the summary); its shape and volumes do not depend on it")
     return gnss
+
+
+def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tuple[dict[str, int], str]:
+    """The flight (0, 1, ... in time order) of each image with a GNSS position, and how it was found: the
+    flight folders of a DJI survey (``camera_offsets.csv`` -> flight, one per Timestamp.MRK), else a gap of
+    more than ``gap_s`` seconds between consecutive trigger times (a battery swap)."""
+    names = list(gnss.names)
+    t = np.asarray(gnss.trigger_gps_time_s, float)
+    if offsets_csv is not None and Path(offsets_csv).is_file():
+        with open(offsets_csv) as f:
+            rows = {r["image"]: r.get("flight") for r in csv.DictReader(f)}
+        if names and all(rows.get(n) not in (None, "") for n in names):
+            raw = {n: int(rows[n]) for n in names}
+            order = sorted(set(raw.values()), key=lambda k: min(t[i] for i, n in enumerate(names) if raw[n] == k))
+            return {n: order.index(raw[n]) for n in names}, f"flight folders ({Path(offsets_csv).name})"
+    if not names:
+        return {}, "no GNSS positions"
+    if not np.all(np.isfinite(t)):
+        return {n: 0 for n in names}, "one flight (trigger times unknown)"
+    order = np.argsort(t, kind="stable")
+    new_flight = np.r_[False, np.diff(t[order]) > gap_s]
+    flight = np.cumsum(new_flight)
+    return {names[i]: int(f) for i, f in zip(order, flight)}, f"gaps of more than {gap_s:g} s between photos"
+
+
+def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: int,
+                        base_position: dict | None) -> dict | None:
+    """The prior of the per-flight GNSS offsets (docs/georeferencing.md, "Several flights"), or None where they
+    are not modelled: the joint adjustment on PPK or RTK camera positions, ``opts.flight_offsets`` on, or auto
+    with two or more flights or a base position that is not surveyed. Common part (every flight): the base
+    position's sigma from the PPK summary where it states one (not surveyed), else 0; each flight's own part:
+    ``opts.flight_offset_sigma_m`` (horizontal, vertical)."""
+    if opts.mode != "joint" or opts.flight_offsets == "off" or gnss is None or n_flights < 1:
+        return None
+    if gnss.from_photos and gnss.kind != "rtk":      # metre-level EXIF GPS: its own sigma dwarfs any offset
+        return None
+    common = np.zeros(3)
+    common_source = "surveyed base (no common part)"
+    if gnss.from_photos:
+        common_source = "RTK-tagged photos: the RTK base or network taken as surveyed (no common part)"
+    elif base_position and base_position.get("sigma_enu_m") is not None:
+        common = np.asarray(base_position["sigma_enu_m"], float).reshape(3)
+        common_source = f"base position not surveyed ({base_position.get('source')}): its sigma"
+    h, v = (float(x) for x in opts.flight_offset_sigma_m)
+    own = np.array([h, h, v])
+    if opts.flight_offsets == "auto" and n_flights < 2 and not np.any(common > 0):
+        return None
+    if not np.any(common > 0) and not np.any(own > 0):
+        return None                                # a zero prior: nothing to model
+    if np.any(common + own <= 0):
+        raise ProcessingError(f"flight_offset_sigma_m {opts.flight_offset_sigma_m}: a zero sigma with no base-position "
+                              "sigma to add to it leaves an axis without a prior; give positive sigmas or "
+                              "flight_offsets off")
+    return {"common_sigma_enu_m": common.round(4).tolist(), "flight_sigma_enu_m": own.round(4).tolist(),
+            "common_source": common_source,
+            "flight_source": "flight_offset_sigma_m (an assumption: a survey-grade RTK specification, 1 cm + 1 ppm "
+                             "horizontally, 1.5 cm + 1 ppm vertically)"}
 
 
 def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: ControlData, gnss_enu: dict,
@@ -314,9 +374,27 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
         basis.append({"kind": "base position", "source": base_position.get("source"), "sigma_enu_m": base_sigma})
         text.append("the base position they are relative to: " + str(base_position.get("text") or
                                                                     base_position.get("source")))
+    fo = adj.stats.get("flight_offsets")
+    if fo:
+        csig = np.sqrt(np.einsum("nii->ni", np.asarray(adj.centre_cov_enu_m2, float)))
+        ch, cv = float(np.median(np.hypot(csig[:, 0], csig[:, 1]) / np.sqrt(2))), float(np.median(csig[:, 2]))
+        basis.append({"kind": "per-flight GNSS offsets", "flights": len(fo["flights"]), "prior": fo["prior"],
+                      "estimated_by": fo["estimated_by"],
+                      "offsets": [{k: r[k] for k in ("flight", "offset_enu_m", "sigma_enu_m")} for r in fo["flights"]],
+                      "camera_centre_median_sigma_m": {"horizontal": round(ch, 4), "vertical": round(cv, 4)}})
     if not basis:
         return {"basis": [], "text": "no absolute reference"}
     lead = "the survey's absolute position rests on " + " and ".join(text)
+    if fo:
+        sd = np.array([r["sigma_enu_m"] for r in fo["flights"]])
+        lead += (f". Each of the {len(fo['flights'])} flight(s) is given a common offset of its GNSS positions (prior "
+                 f"{_metres(float(np.hypot(*fo['prior']['flight_sigma_enu_m'][:2]) / np.sqrt(2)))} horizontally, "
+                 f"{_metres(fo['prior']['flight_sigma_enu_m'][2])} vertically per flight"
+                 + (", plus the base position's sigma common to all" if any(fo["prior"]["common_sigma_enu_m"]) else "")
+                 + f"), estimated by {fo['estimated_by'].split(':')[0]}: offsets known to "
+                 f"{_metres(float(np.median(np.hypot(sd[:, 0], sd[:, 1]) / np.sqrt(2))))} horizontally, "
+                 f"{_metres(float(np.median(sd[:, 2])))} vertically; the camera centres' stated sigmas include it "
+                 f"(median {_metres(ch)} horizontally, {_metres(cv)} vertically)")
     if base_sigma is not None:
         e, n, u = (float(v) for v in base_sigma)
         lead += (f". The base position is uncertain by {_metres(float(np.hypot(e, n)))} horizontally and "
@@ -420,13 +498,14 @@ def _project_frame(opts: GeorefOptions, meta: dict, control: ControlData, gnss: 
 
 def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progress: ProgressFn | None = None) -> dict:
     from ..photo.sfm import SfmOptions, run_sfm, sfm_inputs_key
-    from .gnss_solve import read_survey_json, run_survey_gnss
+    from .gnss_solve import gnss_inputs_key, read_survey_json, run_survey_gnss, trigger_table_key, trigger_times_key
 
     if isinstance(options, dict):
         opts = georef_options_from_dict(options)  # validated there
     else:
         opts = replace(options) if options is not None else GeorefOptions()   # the run's own copy
         validate_shutter_options(opts)
+        validate_flight_options(opts)
     if opts.mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}")
     survey_dir, out = Path(survey_dir), Path(out_dir)
@@ -477,13 +556,22 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
             times, w = exif_trigger_times(image_dir, image_names, offset)
             warnings += w
             times_source = f"EXIF times {offset:+.3f} s"
-            made = out / "ppk" / "exif_triggers.csv"
-            same_triggers = gnss_offset == offset and made.is_file() and made.read_text() == trigger_csv_text(times)
             gnss_options["exif_time_offset_s"] = offset
-        else:
-            same_triggers = gnss_offset is None
-        # an earlier PPK is reused only when it was made for the same trigger times
-        if not opts.ppk_from_gnss_step and not (opts.reuse and ev_csv.is_file() and same_triggers):
+        def same_triggers() -> bool:
+            """An earlier PPK is reused only when it was made for the same trigger times (the same source: EXIF
+            times with the same offset, or not; the same times: their hash, recorded by the GNSS step) from the
+            same GNSS files with the same GNSS options (gnss_solve.gnss_inputs_key)."""
+            if gnss_options.get("events_csv"):
+                key = trigger_table_key(gnss_options["events_csv"])
+            elif times is not None:
+                key = trigger_times_key(times.values())
+            else:
+                key = trigger_table_key(found.events_csv)
+            prev = _ppk_summary(out)
+            return (gnss_offset == offset and prev.get("triggers_sha256") == key
+                    and prev.get("inputs_sha256") == gnss_inputs_key(found, gnss_options))
+
+        if not opts.ppk_from_gnss_step and not (opts.reuse and ev_csv.is_file() and same_triggers()):
             run_survey_gnss(survey_dir, out, gnss_options, found=found)
         if ev_csv.is_file():
             gnss = match_images_to_events(image_dir, image_names, ev_csv, times, times_source, found.events_csv)
@@ -517,6 +605,15 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
                 warnings.append(f"{name}: no PPK solution at its trigger; used without GNSS")
                 continue
             gnss_enu[name] = (enu[k], vel[k], cov[k], int(gnss.status[k]), float(gnss.trigger_gps_time_s[k]))
+    # the flights (batteries) of the GNSS positions and the prior of their common offsets
+    flight_prior = None
+    if gnss is not None and gnss_enu:
+        flights, flights_source = image_flights(gnss, found.camera_offsets_csv, opts.flight_gap_s)
+        flights = {n: f for n, f in flights.items() if n in gnss_enu}
+        flight_prior = flight_offset_prior(opts, gnss, len(set(flights.values())),
+                                           _ppk_summary(out).get("base_position"))
+        if flight_prior is not None:
+            flight_prior.update(flights=flights, flights_from=flights_source)
 
     # ---- SfM
     t0 = time.perf_counter()
@@ -559,7 +656,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     t0 = time.perf_counter()
     report("adjustment", 0, 1)
     result = _adjust(opts, frame, rec, control, gnss_enu, warnings,
-                     rolling=[bool(sh["rolling_shutter"]) for sh in shutters], image_dir=image_dir)
+                     rolling=[bool(sh["rolling_shutter"]) for sh in shutters], image_dir=image_dir,
+                     flight_prior=flight_prior)
     _shutter_outcomes(shutters, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
@@ -631,6 +729,9 @@ class _Adjusted:
     readout_s: np.ndarray = field(default_factory=lambda: np.zeros(1))
     readout_sigma_s: list = field(default_factory=lambda: [None])
     doming: dict | None = None       # the block's bending against the camera positions (doming.py)
+    # per-flight GNSS offsets, where modelled: their covariance (3F, 3F) and each camera centre's with them
+    flight_offset_cov_m2: np.ndarray | None = None
+    camera_flight_cov_m2: np.ndarray | None = None
 
     def camera_intrinsics(self, intr: np.ndarray | None = None) -> np.ndarray:
         """(N, 8) each image's intrinsics (its group's row of ``intr``, default the adjusted ones)."""
@@ -720,7 +821,7 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
 
 
 def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list,
-            rolling: bool | list = False, image_dir: Path | None = None) -> _Adjusted:
+            rolling: bool | list = False, image_dir: Path | None = None, flight_prior: dict | None = None) -> _Adjusted:
     # the camera groups: the SfM's cameras of the registered images, in camera-id order (camera 1 is the
     # largest group); every image has its group's intrinsics
     images = sorted(rec.images.values(), key=lambda im: im.name)
@@ -861,6 +962,11 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             prob.lever_arm_prior_sigma_m = np.full(3, float(opts.lever_arm_sigma_m))
         if prior is not None:
             prob.intrinsics_prior, prob.intrinsics_prior_sigma = prior[0].copy(), prior[1].copy()
+        if flight_prior is not None and gn:   # a common offset per flight (flight_offset_prior)
+            present = sorted({flight_prior["flights"][n] for n in gn})
+            prob.gnss_flight = np.array([present.index(flight_prior["flights"][n]) for n in gn], int)
+            prob.flight_offset_prior_cov_m2 = flight_offset_prior_cov(len(present), flight_prior["common_sigma_enu_m"],
+                                                                      flight_prior["flight_sigma_enu_m"])
         return prob, gn, gcp_names
 
     free = np.tile(cm.free_mask(opts.camera_model), (G, 1))
@@ -870,6 +976,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     control_names = {n for n, p in control.points.items() if p.role == "control"}
     lever_sigma = None
     delay_sigma = None
+    flight_cov = cam_flight_cov = None
     correlations: dict = {}
     gnss_rows: list[dict] = []
     stats: dict = {"mode": opts.mode}
@@ -908,6 +1015,9 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                       "rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "tie_observation_outliers": int(res.obs_outlier.sum()), "gnss_outliers": int(res.gnss_outlier.sum()),
                       "control_points_used": gcps})
+        if res.flight_offset_enu_m is not None:
+            flight_cov, cam_flight_cov = res.flight_offset_cov_m2, res.camera_flight_cov_m2
+            stats["flight_offsets"] = _flight_offsets_summary(flight_prior, gn, res, bool(gcps))
         intr = prob.intrinsics
         isig = _intrinsics_sigmas(res, G, fisheye)
         R, C = prob.R_cam_to_enu, prob.centre_enu_m
@@ -1001,7 +1111,28 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                      points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
                      rerun=rerun, fisheye=fisheye, camera_group=cam_group, camera_velocity_enu_m_s=cam_vel,
                      image_height_px=heights, readout_s=np.asarray(readout, float).reshape(G),
-                     readout_sigma_s=readout_sigma)
+                     readout_sigma_s=readout_sigma, flight_offset_cov_m2=flight_cov, camera_flight_cov_m2=cam_flight_cov)
+
+
+def _flight_offsets_summary(flight_prior: dict, gn: list[str], res, tied: bool) -> dict:
+    """The summary's flight_offsets: the model, its prior, and per flight the images, the estimated offset
+    (E, N, U) and its sigma."""
+    present = sorted({flight_prior["flights"][n] for n in gn})
+    sd = np.sqrt(np.abs(np.diag(res.flight_offset_cov_m2))).reshape(-1, 3)
+    rows = []
+    for k, f in enumerate(present):
+        imgs = [n for n in gn if flight_prior["flights"][n] == f]
+        rows.append({"flight": int(f) + 1, "images": len(imgs), "first_image": imgs[0], "last_image": imgs[-1],
+                     "offset_enu_m": res.flight_offset_enu_m[k].round(4).tolist(), "sigma_enu_m": sd[k].round(4).tolist()})
+    return {"model": "C = A(trigger) - o_flight + R L + v dt (o_flight: the error common to the flight's GNSS "
+                     "positions, measured minus true, E/N/U)",
+            "flights_from": flight_prior["flights_from"],
+            "prior": {k: flight_prior[k] for k in ("common_sigma_enu_m", "common_source", "flight_sigma_enu_m",
+                                                   "flight_source")},
+            "estimated_by": "the control points" if tied else "nothing: no control point, the prior is propagated "
+                                                               "into the covariances (only the flights' differences "
+                                                               "are measured, by the tie points)",
+            "flights": rows}
 
 
 # ------------------------------------------------------------------------------------------- doming
@@ -1053,6 +1184,15 @@ def _residual_row(name, role, est_enu, cov_enu, frame: ProjectFrame, control: Co
     return ResidualRow(name, role, float(d[0]), float(d[1]), float(d[2]), float(np.linalg.norm(d)), n_img, sig, note)
 
 
+def flight_offset_point_cov(camera_flight_cov_m2: np.ndarray, flight_offset_cov_m2: np.ndarray) -> np.ndarray:
+    """(3, 3) the part of a triangulated point's covariance that the per-flight GNSS offsets' uncertainty puts
+    there: each observing camera's centre moves with the offsets by M_i = Cov(C_i, o) Cov(o)^-1, a point
+    moves with its cameras' mean shift, so it carries (mean M_i) Cov(o) (mean M_i)^T (linear propagation)."""
+    Co = np.asarray(flight_offset_cov_m2, float)
+    M = np.mean(np.asarray(camera_flight_cov_m2, float), axis=0) @ np.linalg.pinv(Co)
+    return M @ Co @ M.T
+
+
 def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), R=None, C=None, intr=None,
                  kind="check points", readout_s: float | None = None) -> ResidualTable:
     R = adj.R_cam_to_enu if R is None else R
@@ -1069,7 +1209,10 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
         uv, cams = np.array([m[1] for m in ms]), np.array([idx[m[0]] for m in ms])
         t = triangulate(uv, cams, R, C, adj.camera_intrinsics(intr), fisheye=adj.fisheye,
                         centre_shift_enu_m=adj.centre_shift_enu_m(cams, uv, readout_s))
-        table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, t.cov_enu_m2, frame, control, len(ms)))
+        cov = t.cov_enu_m2
+        if cov is not None and adj.camera_flight_cov_m2 is not None:
+            cov = cov + flight_offset_point_cov(adj.camera_flight_cov_m2[np.unique(cams)], adj.flight_offset_cov_m2)
+        table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, cov, frame, control, len(ms)))
     return table
 
 

@@ -47,12 +47,21 @@ class GeorefOptions:
     # a camera's factory calibration written into its photos (DJI XMP DewarpData): "prior" weights it
     # (FACTORY_CALIBRATION_SIGMA) with the self-calibration, "fixed" holds it, "ignore" self-calibrates freely
     factory_calibration: str = "prior"
+    # a common 3-D offset of the GNSS camera positions of each flight (battery), with a prior, in the joint
+    # adjustment (docs/georeferencing.md, "Several flights"): "auto" where the positions come in two or more
+    # flights or their base position is not surveyed, "on" always (PPK / RTK positions), "off" never
+    flight_offsets: str = "auto"
+    # each flight's own offset sigma (horizontal, vertical; m): a wrong-but-consistent ambiguity set, an RTK
+    # network's offset; an assumption (a survey-grade RTK specification), the base position's sigma adds to it
+    flight_offset_sigma_m: tuple[float, float] = (0.01, 0.015)
+    flight_gap_s: float = 120.0               # without flight folders: a gap this long between photos starts a flight
     # the platform's georef step: OUT_DIR/ppk is the gnss step's result (made with the run's GNSS options and,
     # if set there, its EXIF trigger times): it is read, never re-run here
     ppk_from_gnss_step: bool = False
 
 
 FACTORY_CALIBRATION_CHOICES = ("prior", "fixed", "ignore")
+FLIGHT_OFFSET_CHOICES = ("auto", "on", "off")
 
 
 def validate_shutter_options(opts: GeorefOptions) -> None:
@@ -75,7 +84,7 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
     if unknown:
         raise ProcessingError(f"unknown georeferencing settings: {', '.join(unknown)} (known: {', '.join(sorted(names))})")
     d = dict(d)
-    for key in ("lever_arm_cam_m", "fixed_intrinsics", "gcp_sigma_m"):
+    for key in ("lever_arm_cam_m", "fixed_intrinsics", "gcp_sigma_m", "flight_offset_sigma_m"):
         if d.get(key) is not None:
             d[key] = tuple(float(v) for v in d[key])
     opts = GeorefOptions(**d)
@@ -88,4 +97,16 @@ def georef_options_from_dict(d: dict) -> GeorefOptions:
     if opts.factory_calibration not in FACTORY_CALIBRATION_CHOICES:
         raise ProcessingError(f"factory_calibration {opts.factory_calibration!r}: one of "
                               f"{', '.join(FACTORY_CALIBRATION_CHOICES)}")
+    validate_flight_options(opts)
     return opts
+
+
+def validate_flight_options(opts: GeorefOptions) -> None:
+    """The per-flight GNSS offsets' choice, sigmas (two, not negative) and flight gap (positive)."""
+    if opts.flight_offsets not in FLIGHT_OFFSET_CHOICES:
+        raise ProcessingError(f"flight_offsets {opts.flight_offsets!r}: one of {', '.join(FLIGHT_OFFSET_CHOICES)}")
+    sig = tuple(opts.flight_offset_sigma_m)
+    if len(sig) != 2 or not all(0.0 <= float(v) <= 10.0 for v in sig):
+        raise ProcessingError(f"flight_offset_sigma_m {sig}: two sigmas (horizontal, vertical) of 0 to 10 m")
+    if not float(opts.flight_gap_s) > 0.0:
+        raise ProcessingError(f"flight_gap_s {opts.flight_gap_s}: a positive number of seconds")

@@ -45,6 +45,8 @@ def run_gnss_solve(rover_path, base_path, nav_paths, out_pos, opts: RtkOptions, 
         "base_position_ecef_m": [round(float(v), 4) for v in sol.base_position_ecef_m],
         # where it came from and how uncertain: every position of the solution shares its error
         "base_position": dict(sol.base_position_basis),
+        # receiver and antenna models as the rover's and base's files state them (gnss/receiver_equipment.py)
+        "equipment": dict(sol.equipment),
         "outputs": {"pos": str(out_pos), "parquet": str(parquet_path)},
         "timings_s": {k: round(v, 3) for k, v in sol.timings_s.items()},
         "warnings": sol.warnings,
@@ -240,6 +242,14 @@ def _run_survey_gnss(survey_dir, out_dir, options: dict | None, progress, found)
                              events_out=out / "events.csv", rover_events_first=rover_events_first,
                              approx_gps_time_s=approx_t, progress=_solve_progress(progress))
     summary["warnings"] = found.warnings + exif_warnings + summary.get("warnings", [])
+    rover_eq = (summary.get("equipment") or {}).get("rover")
+    if found.layout == "dji" and rover_eq:
+        from ..gnss.receiver_equipment import FORMAT_LABELS
+
+        if rover_eq.get("format") == FORMAT_LABELS["rtcm3"]:
+            rover_eq["format"] = FORMAT_LABELS["dji-rtcm3"]      # the aircraft's *_PPKRAW.bin
+    summary["triggers_sha256"] = trigger_table_key(events_csv)   # the georef command's PPK reuse keys
+    summary["inputs_sha256"] = gnss_inputs_key(found, options)
     if opt.get("exif_time_offset_s") is not None:
         summary["exif_time_offset_s"] = float(opt["exif_time_offset_s"])
     # paths relative to the run folder, so a moved or re-used run folder stays valid
@@ -272,6 +282,57 @@ def _solve_progress(progress):
 
     note = "" if gnss_kernels_cached() else f" (first run: compiling the kernels, about {GNSS_COMPILE_ESTIMATE_S} s)"
     return lambda stage, done, total: progress(f"gnss: {stage}{note}", done, total)
+
+
+def trigger_times_key(times) -> str:
+    """sha256 of trigger times (GPS s, to the microsecond, in time order): what a PPK's camera events depend
+    on besides the observations. The GNSS step records it in ppk/summary.json (triggers_sha256); the georef
+    command reuses an earlier PPK only under the same key, so a changed trigger time runs the PPK again."""
+    import hashlib
+
+    t = np.sort(np.asarray(list(times), float))
+    return hashlib.sha256("\n".join(f"{v:.6f}" for v in t).encode()).hexdigest()
+
+
+def gnss_inputs_key(found, options: dict | None) -> str:
+    """sha256 of what a PPK depends on besides its trigger times (:func:`trigger_table_key`): the content of
+    every GNSS file of the survey (rover, base and navigation files, DJI MRK files, the trigger and camera
+    offset tables, survey.json with its take-off point) and the GNSS options after validation (defaults
+    filled). The GNSS step records it in ppk/summary.json (inputs_sha256); the georef command reuses an earlier
+    PPK only under the same key, so a replaced, added or edited observation file or a changed option runs the
+    PPK again (as the SfM is keyed on the photos: photo/sfm.sfm_inputs_key)."""
+    import hashlib
+
+    from .contract import get_spec
+
+    survey_dir = Path(found.survey_dir)
+    files = [*found.rover_files, *found.base_files, *found.nav_files, *(f.mrk_path for f in found.flights),
+             found.events_csv, found.camera_offsets_csv, survey_dir / "survey.json"]
+    h = hashlib.sha256()
+    for path in sorted({Path(p) for p in files if p is not None and Path(p).is_file()}):
+        digest = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+        h.update(f"{_relative_to(path, survey_dir)}\0{digest.hexdigest()}\n".encode())
+    spec = get_spec("gnss")
+    opt = {o.name: o.default for o in spec.options if o.default is not None}    # a default written out or not
+    opt.update({k: v for k, v in spec.validate(dict(options or {})).items() if v is not None})
+    h.update(json.dumps(opt, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def trigger_table_key(events_csv) -> str | None:
+    """:func:`trigger_times_key` of a trigger table (events.csv, a DJI MRK's, an EXIF-times table); None
+    without one (the triggers are then the rover log's own event records)."""
+    if not events_csv or not Path(events_csv).is_file():
+        return None
+    try:
+        return trigger_times_key(read_event_csv(events_csv))
+    except InputFileError:      # not a table the solve reads (the rover's records win): its bytes, then
+        import hashlib
+
+        return "file:" + hashlib.sha256(Path(events_csv).read_bytes()).hexdigest()
 
 
 def _first_event_time(events_csv) -> float | None:

@@ -4,7 +4,7 @@ its report step (backend/services/steps_catalog.py). Importing this module loads
 from __future__ import annotations
 
 from .contract import Option, Output, Product, Split, StepSpec, options_from_dataclass, register
-from .georef_options import FACTORY_CALIBRATION_CHOICES, MODES, SFM_MODELS, GeorefOptions
+from .georef_options import FACTORY_CALIBRATION_CHOICES, FLIGHT_OFFSET_CHOICES, MODES, SFM_MODELS, GeorefOptions
 
 # ---------------------------------------------------------------------------------------------------- gnss
 GNSS = StepSpec(
@@ -64,7 +64,12 @@ GNSS = StepSpec(
     summary={"epochs": "epochs solved", "fix_rate": "share of fixed epochs",
              "fix_conflicts": "epochs both filter directions fixed more than 5 cm apart",
              "events": "camera triggers and their quality",
-             "skipped": "true when there was nothing to solve (photos alone), with 'reason'"},
+             "equipment": "rover and base receiver and antenna models (RINEX header REC # / TYPE / VERS and "
+                          "ANT # / TYPE, RTCM 1033, UBX MON-VER) and the file format they came from",
+             "skipped": "true when there was nothing to solve (photos alone), with 'reason'",
+             "triggers_sha256": "hash of the trigger times the camera events were made for (the georef "
+                                "command's PPK reuse key, with inputs_sha256)",
+             "inputs_sha256": "hash of every GNSS file's content and the GNSS options (the PPK reuse key)"},
 )
 
 # -------------------------------------------------------------------------------------------------- georef
@@ -95,10 +100,16 @@ GEOREF = StepSpec(
               "rolling_shutter": "the camera has a rolling shutter (default: from its model)",
               "readout_s": "rolling-shutter readout time (default: estimated)",
               "fixed_intrinsics": "a calibrated camera's 8 intrinsics, held fixed",
-              "factory_calibration": "a DJI factory calibration: prior, fixed or ignore"},
+              "factory_calibration": "a DJI factory calibration: prior, fixed or ignore",
+              "flight_offsets": "a common GNSS offset per flight, with a prior: auto, on or off",
+              "flight_offset_sigma_m": "each flight's own GNSS offset sigma (horizontal, vertical)",
+              "flight_gap_s": "without flight folders, a gap this long between photos starts a flight"},
         mode={"choices": MODES + ("a", "b", "c"), "nullable": False},
         camera_model={"choices": tuple(SFM_MODELS), "nullable": False},
         factory_calibration={"choices": FACTORY_CALIBRATION_CHOICES, "nullable": False},
+        flight_offsets={"choices": FLIGHT_OFFSET_CHOICES, "nullable": False, "advanced": True},
+        flight_offset_sigma_m={"minimum": 0.0, "maximum": 10.0, "unit": "m", "length": 2, "advanced": True},
+        flight_gap_s={"minimum": 1.0, "maximum": 86400.0, "unit": "s", "advanced": True},
         sigma_px={"minimum": 0.01, "maximum": 100.0, "unit": "px", "advanced": True},
         gcp_sigma_px={"minimum": 0.01, "maximum": 100.0, "unit": "px", "advanced": True},
         gcp_sigma_m={"minimum": 0.0, "maximum": 10.0, "unit": "m", "length": 2},
@@ -330,6 +341,7 @@ DESIGN = StepSpec(
     ),
     summary={"cut_m3": "above design (to remove)", "fill_m3": "below design (to place)", "net_m3": "cut - fill",
              "sigma_m3": "1 sigma of cut, fill, net", "on_grade_share": "share within +-tolerance",
+             "design_sigma_m3": "the design's own share of each sigma (common to all surveys against this design)",
              "skipped": "true when the site has no design surface"},
 )
 
@@ -343,7 +355,7 @@ DATUM = StepSpec(
                 "(orthometric heights through the installed geoid grid), the datum written into each file "
                 "(docs/datums.md). Skipped for a site in ellipsoidal heights.",
     function="georef_core.steps.datum:step_entry", depends_on=("georef",), soft_after=("dense",),
-    inputs=("gcp/", "survey.json"), site_data=("crs", "vertical"),
+    inputs=("gcp/", "survey.json", "calibration/"), site_data=("crs", "vertical"),
     options=(
         Option("vertical_datum", "string", None, "heights in this datum (default: the site's vertical datum): "
                "egm96, egm2008 (where its grid is installed) or an EPSG vertical CRS code such as EPSG:5773"),
@@ -351,6 +363,11 @@ DATUM = StepSpec(
                "interpolated bilinearly in between", minimum=0.5, maximum=1000.0, unit="m", advanced=True),
         Option("point_cloud", "boolean", True, "also convert the point cloud", advanced=True),
         Option("points_crs", "string", None, "CRS of gcp/points.csv (default: survey.json's points_crs)",
+               advanced=True),
+        Option("calibration", "object", None, "a site calibration (localisation) to apply: the JSON document "
+               "'georef datum calibrate' writes (default: the survey's calibration/ file, if any)", advanced=True),
+        Option("calibration_file", "string", None, "the survey's calibration file (a calibration JSON, or a CSV "
+               "of control pairs solved in the site CRS and datum; default: the one file in calibration/)",
                advanced=True),
     ),
     outputs=(
@@ -362,6 +379,10 @@ DATUM = StepSpec(
         Output("points_geojson", "datum/ground_points.geojson", "the same points as GeoJSON",
                "application/geo+json"),
         Output("summary", "datum/datum_summary.json", "the step summary", "application/json"),
+        Output("calibration", "datum/site_calibration.json", "the site calibration applied: parameters, sigmas, "
+               "residuals per control point", "application/json"),
+        Output("dsm_local", "datum/dsm_local.tif", "DSM on the site's local grid (site calibration applied)",
+               "image/tiff"),
     ),
     products=(
         Product("files/datum/dsm_orthometric.tif", "Surface model (DSM), site heights",
@@ -371,10 +392,17 @@ DATUM = StepSpec(
         Product("files/datum/ground_points.csv", "Control and check points, site heights",
                 "Surveyed points and their residuals, heights in the site's vertical datum", ("points_csv",),
                 (("", "CSV"),)),
+        Product("files/datum/dsm_local.tif", "Surface model (DSM), site grid",
+                "GeoTIFF on the site's local grid (site calibration applied)", ("dsm_local",), (("", "GeoTIFF"),)),
+        Product("files/datum/site_calibration.json", "Site calibration",
+                "The calibration applied: parameters, sigmas and residuals per control point", ("calibration",),
+                (("", "JSON"),)),
     ),
     summary={"datum": "the vertical datum written", "operation": "PROJ's transformation and grid",
              "files": "what was converted (height change range per file)",
-             "skipped": "true for a site in ellipsoidal heights"},
+             "calibration": "the site calibration applied: source, parameters, sigmas, residuals per point (dE, "
+                            "dN, dH: given local - calibrated), their RMS and maximum",
+             "skipped": "true for a site in ellipsoidal heights without a site calibration"},
 )
 register(DATUM)
 
@@ -393,8 +421,9 @@ _EXPORT_FILES = (
      "application/geo+json", "Contours (GeoJSON)", "Contour lines with elevation and index attributes", "GeoJSON"),
     ("landxml", "exports/surface.xml", "the surveyed TIN: LandXML 1.2", "application/xml", "Surface TIN (LandXML)",
      "The surveyed surface as a LandXML 1.2 TIN (Civil 3D, TBC, 12d)", "LandXML"),
-    ("kmz", "exports/ortho.kmz", "the orthophoto as a Google Earth overlay", "application/vnd.google-earth.kmz",
-     "Orthophoto overlay (KMZ)", "The orthophoto for Google Earth and phones (reduced resolution)", "KMZ"),
+    ("kmz", "exports/ortho.kmz", "the orthophoto as a Google Earth overlay (tiled when large)",
+     "application/vnd.google-earth.kmz", "Orthophoto overlay (KMZ)",
+     "The orthophoto for Google Earth and phones (one image, or tiles loaded as you zoom in)", "KMZ"),
     ("xlsx", "exports/site.xlsx", "surveyed points and volumes: XLSX",
      "application/vnd.openxmlformats-officedocument.spreadsheetml.sheet", "Points and volumes (XLSX)",
      "Surveyed points with residuals and stockpile volumes, one sheet each", "XLSX"),
@@ -423,6 +452,9 @@ EXPORTS = StepSpec(
                "250 000 vertices)", minimum=0.01, maximum=1000.0, unit="m", advanced=True),
         Option("geojson_crs", "string", "wgs84", "GeoJSON coordinates: WGS 84 (RFC 7946) or the site CRS",
                choices=("wgs84", "site"), advanced=True),
+        Option("kmz_tile_px", "integer", 2048, "KMZ: an orthophoto longer than this on its longer side is "
+               "written as tiles over a few zoom levels (a super-overlay Google Earth loads as it zooms in), "
+               "else as one image", minimum=256, maximum=1_000_000, unit="px", advanced=True),
     ),
     outputs=tuple(Output(k, p, d, m) for k, p, d, m, *_ in _EXPORT_FILES) + (
         Output("stockpiles_geojson", "exports/stockpiles.geojson", "stockpile outlines with volumes: GeoJSON",

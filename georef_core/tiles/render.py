@@ -183,6 +183,16 @@ def _pick_level(ds, decimation: float) -> int:
 
 def render_tile(path, info: RasterInfo, z: int, x: int, y: int) -> Tile:
     """Tile z/x/y of the raster at `path` in the style of `info` (from :func:`raster_info`)."""
+    rgba, shape, factor = render_tile_rgba(path, info, z, x, y)
+    if rgba is None:
+        return Tile(None)
+    return Tile(_png(rgba), shape, factor)
+
+
+def render_tile_rgba(path, info: RasterInfo, z: int, x: int, y: int) -> tuple[np.ndarray | None, tuple, int]:
+    """:func:`render_tile` before PNG encoding: (RGBA uint8 array TILE_PX x TILE_PX x 4, or None when the tile
+    does not touch the raster; source cells read per band; overview factor). For writers that encode the
+    tile themselves (the KMZ super-overlay: JPEG where it has no transparent pixel)."""
     import rasterio
     from affine import Affine
     from rasterio.enums import Resampling
@@ -193,7 +203,7 @@ def render_tile(path, info: RasterInfo, z: int, x: int, y: int) -> Tile:
     left, bottom, right, top = tile_bounds_m(z, x, y)
     mb = info.mercator_bounds
     if right <= mb[0] or left >= mb[2] or top <= mb[1] or bottom >= mb[3]:
-        return Tile(None)
+        return None, (0, 0), 1
     pad = 1 if info.style in ("heights", "difference") else 0   # one pixel around the tile for the hillshade
     n = TILE_PX + 2 * pad
     px = (right - left) / TILE_PX
@@ -204,7 +214,7 @@ def render_tile(path, info: RasterInfo, z: int, x: int, y: int) -> Tile:
         rb = ds0.bounds
         ib = (max(sb[0], rb.left), max(sb[1], rb.bottom), min(sb[2], rb.right), min(sb[3], rb.top))
         if ib[0] >= ib[2] or ib[1] >= ib[3]:
-            return Tile(None)
+            return None, (0, 0), 1
         # cells the whole tile spans at full resolution, against the tile's pixels
         span = max((sb[2] - sb[0]) / abs(ds0.res[0]), (sb[3] - sb[1]) / abs(ds0.res[1]))
         decimation = max(1.0, span / n)
@@ -248,7 +258,7 @@ def render_tile(path, info: RasterInfo, z: int, x: int, y: int) -> Tile:
                       dst_crs=MERCATOR, resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
             rgba = _style_values(dst, info, px, (top + bottom) / 2)
         rgba = rgba[pad:pad + TILE_PX, pad:pad + TILE_PX]
-    return Tile(_png(np.ascontiguousarray(rgba)), shape, factor)
+    return np.ascontiguousarray(rgba), shape, factor
 
 
 def _style_values(h: np.ndarray, info: RasterInfo, px_merc_m: float, y_merc_m: float) -> np.ndarray:

@@ -122,10 +122,12 @@ def test_an_unsurveyed_base_position_is_stated_as_the_surveys_absolute_uncertain
 def test_switching_control_and_check_reuses_matching(survey, first_run, tmp_path):
     out = tmp_path / "switch"
     shutil.copytree(first_run, out)
+    ppk_made = (out / "ppk" / "summary.json").stat().st_mtime_ns
     rc = main(["georef", str(survey), "--out", str(out), "--control", "T02,T04", "--no-leave-one-out"])
     assert rc == 0
     summary = json.loads((out / "georef_summary.json").read_text())
     assert summary["timings_s"]["sfm_s"] < 2.0             # the SfM model was reused, not recomputed
+    assert (out / "ppk" / "summary.json").stat().st_mtime_ns == ppk_made    # the PPK too (same trigger times)
     names = {r["name"] for r in json.loads((out / "residuals.json").read_text())["points"]}
     assert names and names <= {"T01", "T03", "T05"}
 
@@ -174,10 +176,13 @@ def test_bad_inputs_are_named(survey, first_run, tmp_path, capsys):
     ev_lines = (survey / "events.csv").read_text().splitlines()
     dropped = ev_lines[-1].split(",")[0]
     (ev / "events.csv").write_text("\n".join(ev_lines[:-1]) + "\n")
-    out2 = tmp_path / "out2"
-    out2.mkdir()
-    shutil.copytree(first_run / "sfm", out2 / "sfm")             # reuse SfM; PPK is recomputed for the new events
+    out2 = _reusing(first_run, tmp_path / "out2")    # SfM reused; the PPK, made for other trigger times, runs again
+    ppk_made = (out2 / "ppk" / "summary.json").stat().st_mtime_ns
     assert main(["georef", str(ev), "--out", str(out2), "--no-leave-one-out"]) == 0
+    from georef_core.steps.gnss_solve import trigger_table_key
+
+    assert (out2 / "ppk" / "summary.json").stat().st_mtime_ns != ppk_made
+    assert json.loads((out2 / "ppk" / "summary.json").read_text())["triggers_sha256"] == trigger_table_key(ev / "events.csv")
     summary = json.loads((out2 / "georef_summary.json").read_text())
     assert summary["images"]["with_gnss"] == 11 and summary["images"]["registered"] == 12
     assert any(dropped in w for w in summary["warnings"])
@@ -553,3 +558,50 @@ def test_exif_triggers_are_a_gnss_setting_and_georef_reads_the_gnss_steps_ppk(su
 
     with pytest.raises(ProcessingError, match="georef settings: exif_time_offset_s: unknown option"):
         get_spec("georef").validate({"exif_time_offset_s": 0.1})
+
+
+def test_ppk_reuse_key_is_the_trigger_times(survey, first_run, tmp_path):
+    """The command reuses a PPK only under the same trigger-times key (ppk/summary.json triggers_sha256, issue 24;
+    the runs that reuse or redo it: test_switching_control_and_check_reuses_matching, test_bad_inputs_are_named).
+    The key is the survey's trigger times: one moved by 2 ms changes it; the rows reordered do not."""
+    import csv
+
+    from georef_core.steps.gnss_solve import trigger_table_key
+
+    key = json.loads((first_run / "ppk" / "summary.json").read_text())["triggers_sha256"]
+    assert key == trigger_table_key(survey / "events.csv")
+    rows = list(csv.DictReader((survey / "events.csv").open()))
+
+    def table(name, rows_out):
+        path = tmp_path / name
+        with path.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows_out)
+        return path
+
+    moved = [dict(r) for r in rows]
+    moved[5]["trigger_gps_time_s"] = f"{float(moved[5]['trigger_gps_time_s']) + 0.002:.6f}"
+    assert trigger_table_key(table("moved.csv", moved)) != key
+    assert trigger_table_key(table("reordered.csv", rows[::-1])) == key
+    assert trigger_table_key(tmp_path / "none.csv") is None      # no table: the rover log's own event records
+
+
+def test_ppk_reuse_key_is_the_gnss_inputs_and_options(survey, first_run, tmp_path):
+    """Besides the trigger times, the command reuses a PPK only under the same inputs key (ppk/summary.json
+    inputs_sha256): every GNSS file's content and the validated GNSS options. A base file with one byte
+    changed, an added navigation file or another elevation mask change it; the defaults written out do not."""
+    from georef_core.steps.gnss_solve import gnss_inputs_key
+    from georef_core.steps.survey_inputs import survey_inputs
+
+    key = json.loads((first_run / "ppk" / "summary.json").read_text())["inputs_sha256"]
+    assert gnss_inputs_key(survey_inputs(survey, tmp_path / "o0"), {}) == key
+    assert gnss_inputs_key(survey_inputs(survey, tmp_path / "o1"), {"elmask": 15.0}) == key     # the default
+    assert gnss_inputs_key(survey_inputs(survey, tmp_path / "o2"), {"elmask": 20.0}) != key
+    edited = tmp_path / "edited"
+    shutil.copytree(survey, edited, symlinks=True)
+    base = sorted((edited / "base").iterdir())[0]
+    data = bytearray(base.read_bytes())
+    data[-2] = ord("9") if data[-2] != ord("9") else ord("8")
+    base.write_bytes(bytes(data))
+    assert gnss_inputs_key(survey_inputs(edited, tmp_path / "o3"), {}) != key

@@ -215,6 +215,11 @@ def test_design_step_and_progress_over_two_surveys(world, worker_here, tmp_path)
                + math.pi * (scenes.PIT["radius"] * (1 - 0.05 / scenes.PIT["h"])) ** 2) / A
     assert abs(may["on_grade_share"] - on1) < 0.005 and abs(june["on_grade_share"] - on2) < 0.005
     assert june["on_grade_share"] > may["on_grade_share"]
+    # the change since the previous survey: the cone cut down, the pit unchanged, what remains
+    ch = june["since_previous"]
+    assert may["since_previous"] is None and ch["previous_survey_name"] == "May flight" and ch["days"] == 35.0
+    assert abs(ch["cut_moved_m3"] - (cut1 - cut2)) < 0.002 * (cut1 - cut2) and abs(ch["fill_placed_m3"]) < 0.001 * fill
+    assert abs(ch["remaining_cut_m3"] - cut2) < 0.001 * cut2 and 0 < ch["sigma_m3"]["cut_moved_m3"] < 20
 
     # an identical run reuses the result; a new tolerance computes it again (and keeps the design key)
     again = _design_run(world, s2, later["dsm"])

@@ -162,6 +162,10 @@ def test_rtcm3_raw_log_solves_like_its_rinex(tmp_path):
     d = np.stack([a[c] - b[c] for c in ("x_ecef_m", "y_ecef_m", "z_ecef_m")], axis=1)
     assert np.abs(d).max() < 1e-3, d
     json.dumps(s_dji)      # the summary stays JSON
+    # the receivers as the files state them: the RINEX header's models, the aircraft's log by its format
+    assert s_std["equipment"]["rover"]["receiver"] == "TRIMBLE 5700"
+    assert s_std["equipment"]["base"]["antenna"] == s_dji["equipment"]["base"]["antenna"] == "TRM29659.00"
+    assert s_dji["equipment"]["rover"]["format"] == "DJI RTCM 3 log" and s_dji["equipment"]["rover"]["receiver"] is None
 
 
 def test_mrk_apart_from_its_photos_in_the_standard_folders(tmp_path):

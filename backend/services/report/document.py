@@ -286,6 +286,7 @@ def _gnss(s: _Story, ctx: dict) -> None:
             [gs.get("epochs", "-"), gs.get("fix", "-"), gs.get("float", "-"), gs.get("single", "-"),
              fmt(100 * fr, 1, " %") if finite(fr) else "-"]]
     s.table(rows)
+    _gnss_equipment(s, gs.get("equipment"))
     ev = gs.get("events") or {}
     if ev:
         s.p(f"Camera triggers: {ev.get('count', '-')} events, {ev.get('fixed', '-')} on fixed epochs, "
@@ -318,6 +319,25 @@ def _gnss(s: _Story, ctx: dict) -> None:
         s.sections.append("gnss_plot")
     for w in (gs.get("warnings") or [])[:10]:
         s.p(f"Note: {scrub(w, s.run_dir)}", s.small)
+
+
+def _gnss_equipment(s: _Story, eq: dict | None) -> None:
+    """The rover's and base's receiver and antenna models as their observation files state them (the gnss
+    step's summary "equipment": RINEX header, RTCM 1033, UBX MON-VER; else the file format)."""
+    from reportlab.lib.units import mm
+
+    from georef_core.gnss.receiver_equipment import equipment_text
+
+    s.spacer(1)
+    if not eq:
+        s.p("Receiver and antenna models: not recorded in this run's GNSS summary.", s.small)
+        return
+    rows = [["receiver", "model, as its observation file states it"]]
+    for role, label in (("rover", "Rover (aircraft)"), ("base", "Base station")):
+        if eq.get(role):
+            rows.append([label, s.para(equipment_text(eq[role]))])
+    s.table(rows, widths=[38 * mm, 132 * mm], align_right_from=99)
+    s.sections.append("gnss_equipment")
 
 
 def _georef(s: _Story, ctx: dict) -> None:

@@ -21,7 +21,7 @@ export interface MapOutline {
   id: string;
   name: string;
   ring: Ring;
-  kind?: "pile" | "selected" | "draft";
+  kind?: "pile" | "selected" | "draft" | "design";
 }
 
 export interface MapPoint {

@@ -5,7 +5,8 @@
  */
 
 import type { SeriesPoint } from "../components/LineChart";
-import { bboxOf, outlinesFromGeoJson, ringToGeoJson, selfIntersects, type Ring } from "./geom";
+import type { MapOutline } from "../components/MapView";
+import { bboxOf, openRing, outlinesFromGeoJson, ringToGeoJson, selfIntersects, type Ring } from "./geom";
 
 export interface SiteDesign {
   site_id: string;
@@ -51,6 +52,22 @@ export interface ProgressEntry {
   not_significant_m2?: number | null;
   surface?: string | null;
   warnings: string[];
+  /** against the survey before it (null for the first): backend/schemas/designs.DesignChange */
+  since_previous?: DesignChange | null;
+}
+
+export interface DesignChange {
+  previous_survey_id: string;
+  previous_survey_name: string;
+  days: number | null;
+  cut_moved_m3: number | null;
+  fill_placed_m3: number | null;
+  net_change_m3: number | null;
+  sigma_m3: { cut_moved_m3?: number | null; fill_placed_m3?: number | null; net_change_m3?: number | null };
+  remaining_cut_m3: number | null;
+  remaining_fill_m3: number | null;
+  done_share: { cut_m3?: number | null; fill_m3?: number | null };
+  notes: string[];
 }
 
 export interface DesignProgress {
@@ -122,4 +139,35 @@ export function areaFromGeoJson(text: string, extent?: number[] | null): { area:
   const polys = outlines.map((o) => ringToGeoJson(o.ring));
   if (polys.length === 1) return { area: polys[0], parts: 1 };
   return { area: { type: "MultiPolygon", coordinates: polys.map((p) => p.coordinates) }, parts: polys.length };
+}
+
+/**
+ * The design area (a GeoJSON Polygon or MultiPolygon in the site CRS) as map outlines: one per ring (outer
+ * rings and holes alike, each drawn as a line), the first named after the design. Rings with fewer than three
+ * distinct corners or a coordinate that is not a number are left out; no area: none.
+ */
+export function designAreaOutlines(design: Pick<SiteDesign, "area" | "filename"> | null | undefined): MapOutline[] {
+  const a = design?.area;
+  if (!a || !Array.isArray(a.coordinates)) return [];
+  const polys = (a.type === "MultiPolygon" ? a.coordinates : a.type === "Polygon" ? [a.coordinates] : []) as unknown[][][][];
+  const out: MapOutline[] = [];
+  polys.forEach((poly, i) => {
+    (Array.isArray(poly) ? poly : []).forEach((ring, j) => {
+      if (!Array.isArray(ring)) return;
+      const pts = ring.map((c) => (Array.isArray(c) ? [Number(c[0]), Number(c[1])] : [NaN, NaN]) as [number, number]);
+      if (pts.some(([x, y]) => !Number.isFinite(x) || !Number.isFinite(y))) return;
+      const r = openRing(pts) as Ring;
+      if (r.length < 3) return;
+      out.push({ id: `design-area-${i}-${j}`, name: out.length ? "" : `Design area (${design!.filename})`, ring: r, kind: "design" });
+    });
+  });
+  return out;
+}
+
+/** "+12.3 ± 0.4" (m³) of a change, or "–" when it is unknown. */
+export function formatChange(v: number | null | undefined, sigma?: number | null): string {
+  if (v === null || v === undefined || !Number.isFinite(v)) return "–";
+  const digits = Math.abs(v) >= 100 ? 0 : 1;
+  const s = `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(digits)}`;
+  return sigma !== null && sigma !== undefined && Number.isFinite(sigma) ? `${s} ± ${sigma.toFixed(digits)}` : s;
 }

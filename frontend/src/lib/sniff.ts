@@ -21,7 +21,7 @@ import { type UbxSummary, looksLikeUbx, scanUbx, ubxChecksum } from "./ubx";
  * file_kinds.json, held equal by tests/frontend/test_file_kind_names.py and tests/fileKinds.test.ts). */
 export const SERVER_KINDS = [
   "rinex-obs", "rinex-nav", "ubx", "rtcm3", "dji-mrk", "image", "events", "points", "gcp-list", "survey-metadata",
-  "archive",
+  "archive", "site-calibration",
 ] as const;
 /** What only this pre-check names: files the server does not take (met files, notes) or does not recognise. */
 export const LOCAL_ONLY_KINDS = ["rinex-met", "readme", "unknown"] as const;
@@ -36,6 +36,7 @@ export const FLIGHT_KINDS: FileKind[] = ["image", "dji-mrk", "rtcm3", "ubx", "ri
 /** The `kind` of POST /surveys/{id}/uploads (the server's upload hints, GET /file-kinds). */
 export const UPLOAD_KINDS = [
   "rover", "base", "nav", "images", "events", "points", "gcp-list", "archive", "survey-metadata", "flight",
+  "site-calibration",
 ] as const;
 export type UploadKind = (typeof UPLOAD_KINDS)[number];
 
@@ -172,6 +173,8 @@ export function classify(path: string, _raw: Uint8Array, data: Uint8Array, compr
       problem: mrk.badLines.length ? `damaged MRK: line ${mrk.badLines[0]} does not read as an exposure` : undefined,
     };
   }
+  const cal = siteCalibrationOf(utext);
+  if (cal) return { ...base, kind: "site-calibration", description: cal };
   const meta = surveyMetadata(utext);
   if (meta) return { ...base, kind: "survey-metadata", description: `survey metadata${meta.crs ? ` (${meta.crs})` : ""}` };
   // A table cut at SNIFF_BYTES loses its last row: drop the partial line unless the file was read whole.
@@ -202,6 +205,29 @@ export function classify(path: string, _raw: Uint8Array, data: Uint8Array, compr
 const METADATA_KEYS = ["project_crs", "points_crs", "takeoff_antenna_ecef_m", "receiver", "heights", "crs", "lever_arm_m"];
 
 /** survey.json: a JSON object with at least one of the survey metadata keys. */
+/**
+ * A site calibration (the datum step applies it: docs/datums.md): the JSON `georef datum calibrate` writes
+ * ("format": "georef-site-calibration"), or a CSV of control pairs (a header with local_e_m / local_x ...); its
+ * description, or null. The server checks it fully.
+ */
+export function siteCalibrationOf(text: string): string | null {
+  const t = text.trim();
+  if (t.startsWith("{")) {
+    try {
+      const o = JSON.parse(t);
+      return o && typeof o === "object" && o.format === "georef-site-calibration"
+        ? `site calibration${typeof o.name === "string" && o.name ? ` “${o.name}”` : ""} (${Array.isArray(o.points) ? o.points.length : 0} control points)`
+        : null;
+    } catch {
+      return null;
+    }
+  }
+  const first = t.split(/\r?\n/).find((l) => l.trim() && !l.startsWith("#")) ?? "";
+  if (!/(^|[,;\s])local_(e|e_m|x|easting_m)\s*([,;\s]|$)/i.test(first)) return null;
+  const rows = t.split(/\r?\n/).filter((l) => l.trim() && !l.startsWith("#")).length - 1;
+  return `site calibration control pairs (${rows} points)`;
+}
+
 export function surveyMetadata(text: string): { crs: string | null } | null {
   const t = text.trim();
   if (!t.startsWith("{")) return null;
@@ -260,6 +286,8 @@ export function uploadKindOf(s: Sniffed, role: ObsRole | null): UploadKind | nul
       return "archive";
     case "survey-metadata":
       return "survey-metadata";
+    case "site-calibration":
+      return "site-calibration";
     default:
       return null;
   }

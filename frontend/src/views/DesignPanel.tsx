@@ -12,6 +12,7 @@ import {
   areaFromExtent,
   areaFromGeoJson,
   DESIGN_FILE_ACCEPT,
+  formatChange,
   formatShare,
   netSeriesPoints,
   parseToleranceCm,
@@ -208,6 +209,7 @@ function ProgressView({ p, error, loading }: { p: DesignProgress | null; error: 
               </tbody>
             </table>
           </div>
+          <ChangeTable p={p} />
           {pts.length ? (
             <LineChart title="Net to design (cut − fill) per survey, ± 1σ" yLabel="m³" xTime yZero height={200} series={[{ name: "net", colour: "#1f6feb", markers: true, points: pts }]}
               valueFormat={(v) => formatVolumeNumber(v)} />
@@ -222,6 +224,50 @@ function ProgressView({ p, error, loading }: { p: DesignProgress | null; error: 
           <ul>{p.not_compared.map((n) => <li key={n.survey_id}>{n.survey_name}: {n.reason}</li>)}</ul>
         </details>
       ) : null}
+    </div>
+  );
+}
+
+/** Per survey after the first: what moved toward the design since the survey before it (± 1σ, the design's own
+ * error cancelling) and what remains to the design (design-progress `since_previous`). */
+function ChangeTable({ p }: { p: DesignProgress }) {
+  const rows = p.surveys.filter((e) => e.since_previous);
+  if (!rows.length) return p.surveys.length === 1 ? <p class="small muted">The change since the previous survey appears from the second compared survey on.</p> : null;
+  return (
+    <div class="table-wrap">
+      <table class="data compact" data-testid="design-change">
+        <caption>Since the previous survey (m³, ± 1σ) and what remains to the design</caption>
+        <thead>
+          <tr>
+            <th scope="col">Survey</th>
+            <th scope="col">Since</th>
+            <th scope="col" class="num">Cut removed</th>
+            <th scope="col" class="num">Fill placed</th>
+            <th scope="col" class="num">Net change</th>
+            <th scope="col" class="num">Cut remaining</th>
+            <th scope="col" class="num">Fill remaining</th>
+            <th scope="col" class="num">Done since first (cut / fill)</th>
+          </tr>
+        </thead>
+        <tbody>
+          {rows.map((e) => {
+            const c = e.since_previous!;
+            return (
+              <tr key={e.survey_id}>
+                <th scope="row">{e.survey_name}</th>
+                <td>{c.previous_survey_name}{c.days !== null ? <span class="small muted"> ({Math.round(c.days)} d)</span> : null}
+                  {c.notes.length ? <span class="block small warn-text">{c.notes.join("; ")}</span> : null}</td>
+                <td class="num">{formatChange(c.cut_moved_m3, c.sigma_m3.cut_moved_m3)}</td>
+                <td class="num">{formatChange(c.fill_placed_m3, c.sigma_m3.fill_placed_m3)}</td>
+                <td class="num">{formatChange(c.net_change_m3, c.sigma_m3.net_change_m3)}</td>
+                <td class="num">{formatVolumeNumber(c.remaining_cut_m3)}</td>
+                <td class="num">{formatVolumeNumber(c.remaining_fill_m3)}</td>
+                <td class="num">{formatShare(c.done_share.cut_m3)} / {formatShare(c.done_share.fill_m3)}</td>
+              </tr>
+            );
+          })}
+        </tbody>
+      </table>
     </div>
   );
 }

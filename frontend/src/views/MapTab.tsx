@@ -15,6 +15,7 @@ import { type Grid, RAMPS, difference, quantiles, renderHeights } from "../lib/r
 import { autoRange, gridBBox, heightAt, useRunRaster } from "./rasterLayers";
 import { useDesignLayer, useDesignSummary } from "./designLayer";
 import { designClassOf } from "../lib/designClasses";
+import { designAreaOutlines, type SiteDesign } from "../lib/designProgress";
 import type { SurveyContext } from "./surveyContext";
 
 export interface SiteRun {
@@ -48,6 +49,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
   const [shade, setShade] = useState(0.6);
   const [showPoints, setShowPoints] = useState(true);
   const [showPiles, setShowPiles] = useState(true);
+  const [showArea, setShowArea] = useState(true);
   const [compareId, setCompareId] = useState("");
   const [dsmOpacity, setDsmOpacity] = useState(1);
   const designDone = useDesignSummary(run);
@@ -66,6 +68,9 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
 
   const points = useLoad((signal) => api.get<ApiPoint[]>(`/surveys/${ctx.survey.id}/points`, { signal }).catch(() => [] as ApiPoint[]), [ctx.survey.id]);
   const piles = useLoad((signal) => api.get<Stockpile[]>(`/sites/${ctx.site.id}/stockpiles`, { signal }), [ctx.site.id]);
+  // the site's design area (none: no design, or no area set yet)
+  const siteDesign = useLoad((signal) => api.maybe<SiteDesign>(`/sites/${ctx.site.id}/design`, { signal }), [ctx.site.id]);
+  const areaOutlines = designAreaOutlines(siteDesign.data);
   const siteRuns = useSiteRuns(ctx.site.id);
   const others = (siteRuns.data ?? []).filter((x) => x.run.id !== run.id);
   const change = useChange(dsm.grid, others.find((o) => o.run.id === compareId)?.run ?? null);
@@ -128,6 +133,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
         {designDone ? <label><input type="checkbox" checked={showDesign} onChange={() => setShowDesign(!showDesign)} /> Cut/fill to design</label> : null}
         <label><input type="checkbox" checked={showPoints} onChange={() => setShowPoints(!showPoints)} /> Ground points</label>
         <label><input type="checkbox" checked={showPiles} onChange={() => setShowPiles(!showPiles)} /> Stockpiles</label>
+        {areaOutlines.length ? <label><input type="checkbox" checked={showArea} onChange={() => setShowArea(!showArea)} /> Design area</label> : null}
       </div>
       <ErrorBox error={showOrtho ? ortho.error : null} title="Orthophoto" />
       <ErrorBox error={needDsm ? dsm.error : null} title="Surface model" />
@@ -139,7 +145,7 @@ export function MapTab({ ctx, run }: { ctx: SurveyContext; run: Run }) {
         extent={extent}
         rasters={rasters}
         points={showPoints ? (points.data ?? []).map((p) => ({ name: p.name, x: p.easting_m, y: p.northing_m, role: p.role })) : []}
-        outlines={showPiles ? pileOutlines(piles.data) : []}
+        outlines={[...(showArea ? areaOutlines : []), ...(showPiles ? pileOutlines(piles.data) : [])]}
         onView={(b, ppm) => { ortho.viewChanged(b, ppm); dsm.viewChanged(b, ppm); }}
         readout={readout}
         height={520}

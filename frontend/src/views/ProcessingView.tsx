@@ -6,8 +6,10 @@
 import { useEffect, useMemo, useRef, useState } from "preact/hooks";
 import { api, apiUrl, getAllPages } from "../api/client";
 import type { LogLine, Run, RunDetail, Step } from "../api/types";
+import { CalibrationTable } from "../components/CalibrationTable";
 import { ErrorBox, Loading, Note, ProgressBar, StatePill } from "../components/ui";
 import { useLoad } from "../hooks";
+import { calibrationOf } from "../lib/calibration";
 import { EtaEstimator } from "../lib/eta";
 import { formatDateTime, formatDuration } from "../lib/format";
 import { loadSteps, parseSetting, settingFields, type SettingField } from "../lib/steps";
@@ -245,6 +247,17 @@ function StepSummary({ step }: { step: Step }) {
         {bits.length ? <div>{bits.join(" · ")}</div> : null}
         {lines.map((l) => <div key={l}>{l}</div>)}
         {notable.map((w) => <div key={w} class="warning-text">{w}</div>)}
+      </div>
+    );
+  }
+  if (step.name === "datum") {
+    // heights in the site's datum and, where the run has one, the site calibration with its residuals
+    if (typeof s.datum === "string") bits.push(`heights: ${s.datum}`);
+    const cal = calibrationOf(s);
+    return (
+      <div class="small">
+        {bits.length ? <div>{bits.join(" · ")}</div> : null}
+        {cal ? <CalibrationTable c={cal} /> : null}
       </div>
     );
   }

@@ -34,7 +34,7 @@ const GROUPS: [string, string, (f: LocalFile) => boolean][] = [
   ["obs", "GNSS observations — which receiver?", (f) => isObservation(f.sniff.kind) && !f.flight && !f.role],
   ["nav", "Navigation", (f) => f.sniff.kind === "rinex-nav" && !f.flight],
   ["images", "Photos", (f) => f.sniff.kind === "image"],
-  ["points", "Ground points and measurements", (f) => ["points", "gcp-list", "events", "survey-metadata"].includes(f.sniff.kind)],
+  ["points", "Ground points and measurements", (f) => ["points", "gcp-list", "events", "survey-metadata", "site-calibration"].includes(f.sniff.kind)],
   ["archive", "Archives", (f) => f.sniff.kind === "archive"],
   ["other", "Not used", (f) => ["unknown", "readme", "rinex-met"].includes(f.sniff.kind)],
 ];
