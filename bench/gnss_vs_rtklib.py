@@ -15,14 +15,27 @@ rnx2rtkp binary here; the import costs ~0.04 s). Printed beside the in-process f
 ratio demo5 / ours (> 1: our command finishes first). numba's kernel cache must be warm (`georef warmup`),
 or the first of our runs compiles.
 
+Our whole process's fixed cost (--breakdown N: N fresh processes of the first case, median): the
+interpreter's start, importing numpy, numba and our modules, numba's target set-up (the first kernel call's
+typing and lowering registries), loading the cached kernels the solve calls, reading the files, the solve,
+writing the outputs, and the other first-call costs (lazy imports such as pyarrow). --before DIR times a
+copy of georef_core from before a change (DIR/georef_core, its numba cache copied with it) as a third
+fresh process in the same rounds, so that before and after are measured on the same machine in the same run.
+Our modules are byte-compiled first (as an installed package is; with PYTHONDONTWRITEBYTECODE set, as here
+and in the Dockerfile, a process would otherwise compile ~40 modules from source each time).
+
     python bench/gnss_vs_rtklib.py            # the seven cases of shared/data/README.md
     python bench/gnss_vs_rtklib.py --all      # every reference case
     python bench/gnss_vs_rtklib.py --repeat 5 car
+    python bench/gnss_vs_rtklib.py --repeat 1 --breakdown 5 --before /tmp/georef_before --all
 """
 
 from __future__ import annotations
 
 import argparse
+import compileall
+import json
+import resource
 import statistics
 import subprocess
 import sys
@@ -69,32 +82,143 @@ sys.exit(rtk.postpos(rtk.gtime_t(), rtk.gtime_t(), 0.0, 0.0, popt, sopt, fopt, f
 """
 
 
-def _georef_command() -> list[str]:
+def _georef_command(tree: Path | None = None) -> list[str]:
+    """The `georef` command: the console script, or (tree: a folder holding a georef_core copy) the same
+    entry point run from that copy."""
+    if tree is not None:
+        return [sys.executable, "-c", f"import sys; sys.path.insert(0, {str(tree)!r}); "
+                "from georef_core.cli.main import main; sys.exit(main())"]
     script = Path(sys.executable).with_name("georef")
     return [str(script)] if script.exists() else [sys.executable, "-m", "georef_core.cli.main"]
 
 
-def _timed(cmd, out: Path) -> float:
+# one fresh process of ours, instrumented: where the fixed cost goes (seconds since the previous mark)
+_BREAKDOWN_PROCESS = """
+import json, sys, time
+t0 = time.process_time()
+marks = {}
+def mark(name):
+    global t0
+    t = time.process_time(); marks[name] = t - t0; t0 = t
+sys.path.insert(0, sys.argv[1])
+import numpy
+mark("import numpy")
+import numba
+mark("import numba")
+from georef_core.cli import gnss_commands
+from georef_core.gnss.rtk_options import read_rtklib_conf
+from georef_core.steps import gnss_solve
+mark("import georef_core")
+try:
+    from georef_core.cli.numba_start import trim_numba_start
+except ImportError:   # a tree from before it
+    trim_numba_start = lambda: None
+trim_numba_start()
+from numba.core.registry import cpu_target
+cpu_target.target_context.refresh()
+mark("numba target set-up")
+from numba.core import caching
+loads = []
+_load = caching.Cache.load_overload
+def load_overload(self, sig, ctx):
+    t = time.process_time()
+    try:
+        return _load(self, sig, ctx)
+    finally:
+        loads.append(time.process_time() - t)
+caching.Cache.load_overload = load_overload
+solving = []
+_solve_files = gnss_solve.solve_files
+def solve_files(*a, **k):
+    t, w = time.process_time(), time.perf_counter()
+    sol = _solve_files(*a, **k)
+    solving.append((time.process_time() - t, time.perf_counter() - w, dict(sol.timings_s)))
+    return sol
+gnss_solve.solve_files = solve_files
+conf, out, rover, base, navs = sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
+opts = read_rtklib_conf(conf).options
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)
+first = time.process_time() - t0
+t = time.process_time()
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)    # again: the same work without first-call costs
+total = time.process_time() - t
+solve_s, solve_wall, timings = solving[-1]
+marks["kernel loads"] = sum(loads)
+marks["reading"] = solve_s * min(1.0, timings.get("load", 0.0) / solve_wall)   # its share of the wall time
+marks["solve"] = solve_s - marks["reading"]
+marks["writing"] = total - solve_s
+marks["other first-call costs"] = first - total - sum(loads)
+marks["kernels loaded"] = len(loads)
+print(json.dumps(marks))
+"""
+
+_STARTUP_PROCESS = "pass"
+
+
+def fixed_cost_breakdown(tree: Path, conf, rover, base, navs, tmp: Path, repeat: int) -> dict:
+    """Median over `repeat` fresh processes of each part of our process's CPU time (seconds), the
+    interpreter's own start (`python -c pass`) included."""
+    files = [str(f) for f in (rover, base, *navs)]
+    runs = []
+    for _ in range(repeat):
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        subprocess.run([sys.executable, "-c", _STARTUP_PROCESS], check=True)
+        cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        start = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+        res = subprocess.run([sys.executable, "-c", _BREAKDOWN_PROCESS, str(tree), str(conf),
+                              str(tmp / "breakdown.pos"), *files], capture_output=True, text=True)
+        if res.returncode != 0:
+            raise RuntimeError(f"breakdown process failed: {res.stderr[-2000:]}")
+        runs.append({"interpreter start": start, **json.loads(res.stdout.strip().splitlines()[-1])})
+    return {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+
+
+def print_breakdown(label: str, parts: dict) -> None:
+    n = parts.pop("kernels loaded")
+    total = sum(parts.values())
+    print(f"{label}: {total:.2f} s = " + ", ".join(f"{k} {v:.3f}" for k, v in parts.items())
+          + f" ({n:.0f} kernels loaded)")
+
+
+def byte_compile(tree: Path) -> None:
+    """.pyc files for our modules, as an installed package has them (quiet; only what is out of date)."""
+    compileall.compile_dir(str(tree / "georef_core"), quiet=1)
+
+
+def _timed(cmd, out: Path) -> tuple[float, float]:
+    """Wall seconds of the process, and its CPU seconds (user + system: less disturbed than the wall
+    time by other work on a shared machine)."""
     out.unlink(missing_ok=True)
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     elapsed = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0 or not out.exists():
         raise RuntimeError(f"{cmd[0]} failed ({res.returncode}): {res.stderr[-2000:]}")
-    return elapsed
+    return elapsed, (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
 
 
-def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int) -> tuple[float, float]:
+def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int,
+                        before: Path | None = None) -> dict[str, tuple[float, float]]:
     """Median seconds of a fresh process, start to .pos written: demo5 (python -c + pyrtklib5.postpos), ours
-    (georef gnss solve), alternating."""
+    (georef gnss solve) and, with `before` (a folder holding an earlier georef_core), that copy's command;
+    alternating: {"demo5" | "ours" | "before": (median wall s, median CPU s)}. The before copy's .pos must be
+    the same bytes as ours."""
     files = [str(f) for f in (rover, base, *navs)]
     demo5 = [sys.executable, "-c", _DEMO5_PROCESS, str(conf), str(tmp / "proc_demo5.pos"), *files]
-    ours = [*_georef_command(), "gnss", "solve", *files, "--rtklib-conf", str(conf), "--out", str(tmp / "proc_ours.pos")]
-    d, o = [], []
+    solve = ["gnss", "solve", *files, "--rtklib-conf", str(conf), "--out"]
+    ours = [*_georef_command(REPO if before else None), *solve, str(tmp / "proc_ours.pos")]
+    old = [*_georef_command(before), *solve, str(tmp / "proc_before.pos")] if before else None
+    runs = {"demo5": [], "ours": [], "before": []}
     for _ in range(repeat):
-        d.append(_timed(demo5, tmp / "proc_demo5.pos"))
-        o.append(_timed(ours, tmp / "proc_ours.pos"))
-    return statistics.median(d), statistics.median(o)
+        runs["demo5"].append(_timed(demo5, tmp / "proc_demo5.pos"))
+        runs["ours"].append(_timed(ours, tmp / "proc_ours.pos"))
+        if old:
+            runs["before"].append(_timed(old, tmp / "proc_before.pos"))
+    if old and (tmp / "proc_before.pos").read_bytes() != (tmp / "proc_ours.pos").read_bytes():
+        print(f"  note: {conf.name}: the before copy's .pos differs from ours (not the same engine?)")
+    return {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in runs.items() if v}
 
 
 def main() -> int:
@@ -104,7 +228,14 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=5, help="runs per engine; the best time is reported")
     ap.add_argument("--process-repeat", type=int, default=5,
                     help="whole-process runs per engine (fresh processes); the median is reported (0: skip)")
+    ap.add_argument("--breakdown", type=int, default=3, metavar="N",
+                    help="fresh instrumented processes for the fixed-cost breakdown (median; 0: skip)")
+    ap.add_argument("--before", type=Path, metavar="DIR",
+                    help="a folder holding a copy of georef_core from before a change: timed beside ours")
     args = ap.parse_args()
+    if args.before is not None and not (args.before / "georef_core" / "cli" / "main.py").is_file():
+        print(f"--before {args.before}: no georef_core/cli/main.py there")
+        return 1
     cases = reference_cases()
     if not cases:
         print("shared/data/gnss not found (set GEOREF_SHARED_DATA)")
@@ -116,6 +247,15 @@ def main() -> int:
     # warm-up: numba kernels are compiled (or loaded from cache) on first use
     tmp = Path(tempfile.mkdtemp())
     run_ours(cases[0][5], cases[0][2], cases[0][3], cases[0][4], tmp / "warm.pos")
+    for tree in (REPO, args.before):
+        if tree is not None:
+            byte_compile(tree)
+    if args.breakdown > 0:
+        ds, name, rover, base, navs, conf = cases[0][:6]
+        print(f"our fixed cost, {ds}/{name} (median of {args.breakdown} fresh processes, CPU seconds):")
+        for label, tree in (("before", args.before), ("now", REPO)):
+            if tree is not None:
+                print_breakdown(f"  {label}", fixed_cost_breakdown(tree, conf, rover, base, navs, tmp, args.breakdown))
     print("in-process: epochs per second, ratio ours/demo5 (best of --repeat); whole process (fresh processes, "
           "median of --process-repeat): seconds start to .pos written, ratio demo5/ours (> 1: ours finishes first)")
     print(f"{'dataset/case':52s} {'epochs':>6s} {'demo5 ep/s':>10s} {'ours ep/s':>10s} {'ratio':>6s} "
@@ -123,7 +263,7 @@ def main() -> int:
           f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} | judged: {'fix demo5':>9s} "
           f"{'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} {'refuted demo5/ours':>18s} {'by reverse':>10s} "
           "| our time split (s)")
-    ratios, proc_ratios = [], []
+    ratios, proc_ratios, cpu_ratios, before_ratios = [], [], [], []
     for ds, name, rover, base, navs, conf, ref in cases:
         d_times, o_times = [], []
         for _ in range(args.repeat):
@@ -142,9 +282,16 @@ def main() -> int:
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
         ratios.append(td / to)
         if args.process_repeat > 0:
-            pd_s, po_s = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat)
+            w = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat, args.before)
+            (pd_s, pd_cpu), (po_s, po_cpu) = w["demo5"], w["ours"]
             proc_ratios.append(pd_s / po_s)
-            proc = f"{pd_s:12.2f} {po_s:11.2f} {pd_s / po_s:6.2f} "
+            cpu_ratios.append(pd_cpu / po_cpu)
+            proc = f"{pd_s:12.2f} {po_s:11.2f} {pd_s / po_s:6.2f} (CPU s {pd_cpu:.2f} / {po_cpu:.2f}: {pd_cpu / po_cpu:.2f}"
+            if "before" in w:
+                pb_s, pb_cpu = w["before"]
+                before_ratios.append((pd_s / pb_s, pd_cpu / pb_cpu))
+                proc += f"; before {pb_s:.2f} s: {pd_s / pb_s:.2f}, CPU {pb_cpu:.2f} s: {pd_cpu / pb_cpu:.2f}"
+            proc += ") "
         else:
             proc = f"{'-':>12s} {'-':>11s} {'-':>6s} "
         print(f"{ds + '/' + name:52s} {n:6d} {n / td:10.0f} {n / to:10.0f} {td / to:6.2f} {proc}"
@@ -157,6 +304,13 @@ def main() -> int:
     if proc_ratios:
         print(f"whole-process ratio demo5/ours (seconds, >1 = faster): median {statistics.median(proc_ratios):.2f}, "
               f"min {min(proc_ratios):.2f}, max {max(proc_ratios):.2f} over {len(proc_ratios)} cases")
+        print(f"  in CPU seconds: median {statistics.median(cpu_ratios):.2f}, min {min(cpu_ratios):.2f}, "
+              f"max {max(cpu_ratios):.2f}")
+    if before_ratios:
+        for i, what in enumerate(("seconds", "CPU seconds")):
+            r = [b[i] for b in before_ratios]
+            print(f"  before the change, same rounds, in {what}: median {statistics.median(r):.2f}, "
+                  f"min {min(r):.2f}, max {max(r):.2f}")
     return 0
 
 

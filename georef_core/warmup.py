@@ -380,6 +380,11 @@ def run(args) -> int:
             print(f"  [{done + 1}/{total}] {label} ... ({time.perf_counter() - t0:.0f} s so far)", flush=True)
 
     res = warm_up(groups, show)
+    # the modules' bytecode too: a process started with PYTHONDONTWRITEBYTECODE (the Dockerfile's, some CI and
+    # dev shells) would otherwise compile ~40 modules from source at every `georef gnss solve` (docs/gnss.md)
+    import compileall
+
+    compileall.compile_dir(str(PACKAGE_DIR), quiet=1)
     if res["uncached"]:   # the commands still work: they compile these on first use
         print("georef warmup: warning: still not cached (numba could not write its cache?): "
               + ", ".join(res["uncached"]), file=sys.stderr)

@@ -125,7 +125,9 @@ def cmd_solve(args) -> int:
     for n in notes:
         print(f"georef: warning: {n}", file=sys.stderr)
     from ..warmup import GNSS_COMPILE_ESTIMATE_S, gnss_kernels_cached
+    from .numba_start import trim_numba_start
 
+    trim_numba_start()   # this process solves once and ends: skip what numba loads that the solve never uses
     if not gnss_kernels_cached():
         print(f"georef: first run: compiling the GNSS kernels, about {GNSS_COMPILE_ESTIMATE_S} s (once; "
               "`georef warmup` does it ahead of time)", file=sys.stderr, flush=True)

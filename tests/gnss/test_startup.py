@@ -90,3 +90,39 @@ def test_first_run_notice_and_solve_progress(tmp_path, capsys, monkeypatch):
     assert [(d, t) for _, d, t in seen] == [(0, 4), (1, 4), (2, 4), (3, 4)]
     assert seen[0][0].startswith("gnss: reading the files (first run: compiling the kernels")
     assert "backward pass" in seen[3][0]
+
+
+_SOLVE_PROBE = """
+import sys
+from georef_core.cli.main import main
+rc = main(["gnss", "solve", *sys.argv[1:4], "--out", sys.argv[4], "--freq", "l1", "--filter", "forward"])
+from numba.core.typing import cffi_utils
+import cffi   # importable again after numba's typing was set up without it
+from llvmlite.binding import ffi
+events = any("llvm_lock" in getattr(a, "__qualname__", "") for a, _ in ffi.lib._lock._cblist)
+print(rc, "scipy.linalg" in sys.modules, "pycparser" in sys.modules, cffi_utils.SUPPORTED,
+      "scipy.linalg.cython_lapack" in sys.modules, events)
+"""
+
+
+def test_gnss_solve_process_skips_what_numba_loads_for_nothing(tmp_path):
+    """`georef gnss solve` in a fresh process: numba's target set-up neither imports scipy.linalg's Python API
+    (only its BLAS/LAPACK function tables, which the kernels call) nor cffi's C parser, and numba's
+    LLVM-lock event callbacks are off (cli/numba_start.py); the trajectory is the same as a solve in a process that loaded both."""
+    out = tmp_path / "cli.pos"
+    res = subprocess.run([sys.executable, "-c", _SOLVE_PROBE, str(ROVER), str(BASE), str(NAV), str(out)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr[-2000:]
+    rc, linalg, pycparser, cffi_typing, lapack, lock_events = res.stdout.split()[-6:]
+    assert rc == "0" and lapack == "True" and lock_events == "False"
+    assert linalg == "False", "something in the gnss solve path imports scipy.linalg's package (see numba_start.py)"
+    assert pycparser == "False" and cffi_typing == "False"
+
+    import scipy.linalg  # noqa: F401  (this process: scipy.linalg and numba's cffi support loaded as usual)
+    from georef_core.gnss.rtk_options import RtkOptions
+    from georef_core.steps.gnss_solve import run_gnss_solve
+
+    ref = tmp_path / "ref.pos"
+    run_gnss_solve(ROVER, BASE, [NAV], ref, RtkOptions(n_bands=1, filter_direction="forward"))
+    rows = [[ln for ln in p.read_text().splitlines() if not ln.startswith("%")] for p in (out, ref)]
+    assert len(rows[0]) == 120 and rows[0] == rows[1]
