@@ -31,7 +31,7 @@ lint: install
 	$(PY) -m ruff check --select F,E9 georef_core backend worker tests bench scripts
 
 test-python: install
-	$(PY) -m pytest -q -n 2 --dist loadgroup --durations=30 tests
+	$(PY) -m pytest -q -n 2 --durations=30 tests
 
 test-frontend: install
 	cd frontend && npx vitest run --reporter=dot

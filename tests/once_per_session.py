@@ -1,8 +1,10 @@
-"""Expensive session fixtures (a rendered survey, one dense run, a real block's SfM) computed once per test
-session, not once per xdist worker.
+"""Expensive fixtures (a rendered survey, a georeferenced survey, one dense run, a real block's SfM) computed
+once per test session, not once per xdist worker.
 
-Under ``pytest -n 2`` each worker process has its own session, so a session fixture used by tests that land on
-both workers was computed twice: on a 2-core machine that doubles its cost in wall time. Here the first worker
+Under ``pytest -n 2`` each worker process has its own session, so a session or module fixture used by tests
+that land on both workers was computed twice: on a 2-core machine that doubles its cost in wall time. (Keeping a
+module's tests on one worker instead, ``--dist loadgroup``, was slower here: the whole suite took 24 min 20 s,
+a module of heavy tests then runs on one worker alone.) Here the first worker
 that asks computes the value into a folder shared by the workers (the session's base temporary folder's
 parent, which is this run's own ``pytest-N``), pickles it beside, and the other worker waits on a file lock and
 loads it. Without xdist it is an ordinary session fixture.

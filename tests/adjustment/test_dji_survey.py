@@ -16,6 +16,8 @@ import pytest
 
 from georef_core.cli.main import main
 
+from ..once_per_session import once_per_session
+
 pytest.importorskip("pycolmap")
 
 
@@ -29,14 +31,17 @@ def _simulate(out: Path, flights: int, seed: int = 21, images: int | None = None
 @pytest.fixture(scope="module")
 def dji_survey(tmp_path_factory) -> Path:
     """30 photos of 640 x 480 in four lines over a 69 x 31 m site, five targets (all check points)."""
-    return _simulate(tmp_path_factory.mktemp("dji") / "site", 1, seed=23, images=30)
+    return once_per_session(tmp_path_factory, "dji_survey_seed23",
+                            lambda folder: _simulate(folder / "site", 1, seed=23, images=30))
 
 
 @pytest.fixture(scope="module")
 def ppk_run(dji_survey, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("dji_out")
-    assert main(["georef", str(dji_survey), "--out", str(out), "--control", "none", "--no-leave-one-out"]) == 0
-    return out
+    def make(out):
+        assert main(["georef", str(dji_survey), "--out", str(out), "--control", "none", "--no-leave-one-out"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "dji_survey_seed23_ppk_run", make)
 
 
 def _check_rmse_3d(out: Path) -> tuple[float, int]:

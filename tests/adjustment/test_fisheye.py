@@ -15,6 +15,8 @@ from georef_core.adjustment import camera_model as cm
 from georef_core.cli.main import main
 from georef_core.sim.camera import CameraModel, CameraOptions
 
+from ..once_per_session import once_per_session
+
 pytest.importorskip("pycolmap")
 
 
@@ -48,18 +50,23 @@ def test_fisheye_projection_matches_opencv_and_the_simulator():
 
 @pytest.fixture(scope="module")
 def fisheye_survey(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("fisheye_sim") / "site"
-    assert main(["simulate", str(out), "--seed", "12", "--small", "--lens", "fisheye", "--image-size", "960", "720",
-                 "--quiet"]) == 0
-    return out
+    def make(folder):
+        out = folder / "site"
+        assert main(["simulate", str(out), "--seed", "12", "--small", "--lens", "fisheye", "--image-size", "960",
+                     "720", "--quiet"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "fisheye_survey_seed12", make)
 
 
 @pytest.fixture(scope="module")
 def fisheye_run(fisheye_survey, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("fisheye_out")
-    assert main(["georef", str(fisheye_survey), "--out", str(out), "--camera-model", "fisheye",
-                 "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
-    return out
+    def make(out):
+        assert main(["georef", str(fisheye_survey), "--out", str(out), "--camera-model", "fisheye",
+                     "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "fisheye_run", make)
 
 
 def test_a_fisheye_survey_is_georeferenced(fisheye_survey, fisheye_run):

@@ -13,22 +13,29 @@ import pytest
 
 from georef_core.cli.main import main
 
+from ..once_per_session import once_per_session
+
 pytest.importorskip("pycolmap")
 
 
 @pytest.fixture(scope="module")
 def survey(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("georef_sim") / "site"
-    assert main(["simulate", str(out), "--seed", "11", "--small", "--quiet"]) == 0
-    return out
+    def make(folder):
+        out = folder / "site"
+        assert main(["simulate", str(out), "--seed", "11", "--small", "--quiet"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "georef_step_survey_seed11", make)
 
 
 @pytest.fixture(scope="module")
 def first_run(survey, tmp_path_factory):
-    out = tmp_path_factory.mktemp("georef_out")
-    rc = main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"])
-    assert rc == 0
-    return out
+    def make(out):
+        rc = main(["georef", str(survey), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"])
+        assert rc == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "georef_step_first_run", make)
 
 
 def _linked_copy(survey: Path, dest: Path, without: str) -> Path:

@@ -18,21 +18,28 @@ import pytest
 
 from georef_core.cli.main import main
 
+from ..once_per_session import once_per_session
+
 pytest.importorskip("pycolmap")
 
 
 @pytest.fixture(scope="module")
 def mixed(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("mixed") / "site"
-    assert main(["simulate", str(out), "--seed", "11", "--small", "--quiet", "--second-camera", "512x384:4.8"]) == 0
-    return out
+    def make(folder):
+        out = folder / "site"
+        assert main(["simulate", str(out), "--seed", "11", "--small", "--quiet", "--second-camera", "512x384:4.8"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "mixed_cameras_seed11", make)
 
 
 @pytest.fixture(scope="module")
 def mixed_run(mixed, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("mixed_out")
-    assert main(["georef", str(mixed), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
-    return out
+    def make(out):
+        assert main(["georef", str(mixed), "--out", str(out), "--control", "T01,T03,T05", "--no-leave-one-out"]) == 0
+        return out
+
+    return once_per_session(tmp_path_factory, "mixed_cameras_run", make)
 
 
 def test_two_cameras_register_and_georeference(mixed, mixed_run):
