@@ -44,15 +44,21 @@ def _copy(src: Path, dst: Path, drop, edit_mrk=None) -> Path:
     return dst
 
 
-def _figures(survey: Path, out: Path) -> dict:
-    res = json.loads((out / "residuals.json").read_text())
+def centre_errors_enu_m(survey: Path, out: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(errors, sigmas), (N, 3) each: the adjusted camera centres of a georef output folder against the
+    simulated DJI survey's true centres, in the project frame's ENU (m)."""
     truth = json.loads((survey / "truth" / "camera_poses.json").read_text())
     names = json.loads((survey / "truth" / "dji_names.json").read_text())["names"]
     true_ecef = {names[p["name"]]: np.array(p["camera_centre_ecef_m"]) for p in truth["images"]}
     oi = json.loads((out / "oriented_images.json").read_text())
     pf = ProjectFrame.from_dict(oi["project_frame"])
     d = np.array([np.array(im["centre_enu_m"]) - pf.ecef_to_enu(true_ecef[im["name"]]) for im in oi["images"]])
-    sd = np.array([im["centre_sigma_enu_m"] for im in oi["images"]])
+    return d, np.array([im["centre_sigma_enu_m"] for im in oi["images"]])
+
+
+def _figures(survey: Path, out: Path) -> dict:
+    res = json.loads((out / "residuals.json").read_text())
+    d, sd = centre_errors_enu_m(survey, out)
     return {"check_points": res["statistics"]["n"], "rmse_3d_mm": 1000 * res["statistics"]["3d"]["rmse_m"],
             "rmse_v_mm": 1000 * res["statistics"]["dz"]["rmse_m"],
             "centre_anees": float(np.mean(np.sum((d / sd) ** 2, axis=1) / 3.0)),

@@ -28,7 +28,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import georef_core.steps.georef as step  # noqa: E402
 from georef_core.cli.main import main as georef  # noqa: E402
 from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic  # noqa: E402
-from georef_core.project_frame import ProjectFrame  # noqa: E402
 
 OFFSETS_ENU_M = np.array([[0.03, 0.03, 0.03], [-0.04, -0.04, -0.04]])
 _match = step.match_images_to_events
@@ -48,14 +47,10 @@ def _shifted_match(image_dir, image_names, ppk_events_csv, times=None, times_sou
 
 
 def _figures(survey: Path, out: Path) -> dict:
+    from dji_end_to_end import centre_errors_enu_m      # bench/: the same comparison with the truth
+
     res = json.loads((out / "residuals.json").read_text())
-    truth = json.loads((survey / "truth" / "camera_poses.json").read_text())
-    names = json.loads((survey / "truth" / "dji_names.json").read_text())["names"]
-    true_ecef = {names[p["name"]]: np.array(p["camera_centre_ecef_m"]) for p in truth["images"]}
-    oi = json.loads((out / "oriented_images.json").read_text())
-    pf = ProjectFrame.from_dict(oi["project_frame"])
-    d = np.array([np.array(im["centre_enu_m"]) - pf.ecef_to_enu(true_ecef[im["name"]]) for im in oi["images"]])
-    sd = np.array([im["centre_sigma_enu_m"] for im in oi["images"]])
+    d, sd = centre_errors_enu_m(survey, out)
     rows = res["rows"] if "rows" in res else res.get("points", [])
     cp = [(np.array([r["dx_m"], r["dy_m"], r["dz_m"]]), np.array(r["sigma_m"])) for r in rows if r.get("sigma_m")]
     summary = json.loads((out / "georef_summary.json").read_text())
