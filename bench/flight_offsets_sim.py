@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import georef_core.steps.georef as step  # noqa: E402
 from georef_core.cli.main import main as georef  # noqa: E402
 from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic  # noqa: E402
+from georef_core.steps.survey_inputs import read_camera_flights  # noqa: E402
 
 OFFSETS_ENU_M = np.array([[0.03, 0.03, 0.03], [-0.04, -0.04, -0.04]])
 _match = step.match_images_to_events
@@ -37,8 +38,7 @@ def _shifted_match(image_dir, image_names, ppk_events_csv, times=None, times_sou
     """match_images_to_events, then each flight's positions shifted by its offset (flights from the DJI
     layout's camera_offsets.csv beside events.csv)."""
     g = _match(image_dir, image_names, ppk_events_csv, times, times_source, ev_csv)
-    with open(Path(ev_csv).parent / "camera_offsets.csv") as f:
-        flight = {r["image"]: int(r["flight"]) for r in csv.DictReader(f)}
+    flight = read_camera_flights(Path(ev_csv).parent / "camera_offsets.csv")
     lat, lon, _ = ecef_to_geodetic(g.position_ecef_m.mean(axis=0))
     R = ecef_to_enu_rotation(lat, lon)
     for k, n in enumerate(g.names):

@@ -292,13 +292,14 @@ def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tu
     """The flight (0, 1, ... in time order) of each image with a GNSS position, and how it was found: the
     flight folders of a DJI survey (``camera_offsets.csv`` -> flight, one per Timestamp.MRK), else a gap of
     more than ``gap_s`` seconds between consecutive trigger times (a battery swap)."""
+    from .survey_inputs import read_camera_flights
+
     names = list(gnss.names)
     t = np.asarray(gnss.trigger_gps_time_s, float)
     if offsets_csv is not None and Path(offsets_csv).is_file():
-        with open(offsets_csv) as f:
-            rows = {r["image"]: r.get("flight") for r in csv.DictReader(f)}
-        if names and all(rows.get(n) not in (None, "") for n in names):
-            raw = {n: int(rows[n]) for n in names}
+        rows = read_camera_flights(offsets_csv)
+        if names and all(rows.get(n) is not None for n in names):
+            raw = {n: rows[n] for n in names}
             order = sorted(set(raw.values()), key=lambda k: min(t[i] for i, n in enumerate(names) if raw[n] == k))
             return {n: order.index(raw[n]) for n in names}, f"flight folders ({Path(offsets_csv).name})"
     if not names:

@@ -311,6 +311,12 @@ def read_camera_offsets(path: Path) -> dict[str, np.ndarray]:
                 for r in csv.DictReader(f)}
 
 
+def read_camera_flights(path: Path) -> dict[str, int | None]:
+    """image -> the flight (flight folder, in the order written) of its exposure; None where the table gives none."""
+    with open(path) as f:
+        return {r["image"]: int(r["flight"]) if r.get("flight") not in (None, "") else None for r in csv.DictReader(f)}
+
+
 def _check_one_aircraft(flights: list[DjiFlight], infos: dict, warnings: list[str]) -> None:
     """Photos of one flight from two cameras are refused; flights of different aircraft are named."""
     models_by_flight = []
