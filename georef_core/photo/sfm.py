@@ -99,15 +99,22 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".png")
 
 def sfm_inputs_key(image_dir, options: SfmOptions) -> str:
     """A hash of what an SfM result depends on: every image's name, size and first and last 64 KiB (the
-    EXIF block and enough pixels to tell an edited or replaced photo), the options (positions to the
-    centimetre) and the pycolmap version. A stored model is reused only under the same key: adding,
-    removing or replacing a photo, or changing an option, runs SfM again."""
+    EXIF block and enough pixels to tell an edited or replaced photo), the options and the pycolmap
+    version. A stored model is reused only under the same key: adding, removing or replacing a photo,
+    or changing an option, runs SfM again.
+
+    The given camera positions only choose which pairs are matched, and only with the spatial matcher:
+    they enter the key (to the centimetre) when the matcher resolves to "spatial", and not otherwise
+    (an exhaustive or sequential block's result does not depend on them, so a re-run with other GNSS
+    positions - a new PPK, RTK tags instead of raw PPK - reuses the model)."""
     import hashlib
 
     h = hashlib.sha256()
+    n_images = 0
     for p in sorted(Path(image_dir).iterdir()):
         if p.suffix.lower() not in IMAGE_SUFFIXES or not p.is_file():
             continue
+        n_images += 1
         size = p.stat().st_size
         h.update(f"{p.name}\0{size}\0".encode())
         with open(p, "rb") as fh:
@@ -116,7 +123,11 @@ def sfm_inputs_key(image_dir, options: SfmOptions) -> str:
                 fh.seek(-65536, 2)
                 h.update(fh.read(65536))
     opts = {k: v for k, v in asdict(options).items() if k != "positions"}
-    pos = {n: [round(float(c), 2) for c in v] for n, v in sorted((options.positions or {}).items())}
+    try:    # the folder's count bounds the kept images' count: "exhaustive" here is exhaustive in run_sfm
+        spatial = choose_matcher(n_images, bool(options.positions), options) == "spatial"
+    except (ValueError, ProcessingError):
+        spatial = True
+    pos = {n: [round(float(c), 2) for c in v] for n, v in sorted((options.positions or {}).items())} if spatial else {}
     h.update(json.dumps({"options": opts, "positions": pos, "pycolmap": colmap_api.PYCOLMAP_VERSION},
                         sort_keys=True, default=str).encode())
     return h.hexdigest()

@@ -31,7 +31,7 @@ from ..adjustment import camera_model as cm
 from ..adjustment.bundle_adjustment import (BundleOptions, BundleProblem, adjust, flight_offset_prior_cov,
                                             rolling_shutter_shift)
 from ..adjustment.control_points import ControlData, load_control, point_sigma_enu_cov, points_to_enu
-from ..adjustment.lever_arm_delay import estimate_lever_arm_delay, fit_similarity_delay
+from ..adjustment.lever_arm_delay import estimate_lever_arm_delay, fit_similarity_delay, similarity_centre_cov
 from ..adjustment.residual_table import ResidualRow, ResidualTable
 from ..adjustment.triangulation import find_blunders, triangulate
 from ..errors import InputFileError, ProcessingError
@@ -312,14 +312,41 @@ def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tu
     return {names[i]: int(f) for i, f in zip(order, flight)}, f"gaps of more than {gap_s:g} s between photos"
 
 
+FIXED_STATUS = 1    # a fixed solution: PPK status 1, DJI RtkFlag 50 (photo_positions.STATUS_OF_RTK_FLAG)
+
+
+def flight_offset_groups(exposures: dict, flight_sigma_enu_m) -> tuple[dict[str, int], list[dict]]:
+    """The per-flight offsets' groups and their own prior sigmas from the positions' quality (docs/dji.md, "The
+    per-flight prior from the RTK quality"). ``exposures``: image -> (flight, status, per-exposure sigma E/N/U, m:
+    the PPK's, or the photo's RtkStd). Each flight's fixed exposures (status 1) form one group, its other
+    exposures (float, single point) another: a float or single-point solution's error is a bias drifting over
+    minutes, not the epoch-to-epoch noise a fixed one's sigma describes. Each group's sigma, per axis, is the larger
+    of ``flight_sigma_enu_m`` and the median of its exposures' sigmas. Returns image -> group (flight order, fixed
+    first) and one row per group."""
+    default = np.asarray(flight_sigma_enu_m, float).reshape(3)
+    key = {n: (int(f), int(st) != FIXED_STATUS) for n, (f, st, _) in exposures.items()}
+    keys = sorted(set(key.values()))
+    group_of = {n: keys.index(k) for n, k in key.items()}
+    rows = []
+    for g, (f, not_fixed) in enumerate(keys):
+        members = [n for n in exposures if group_of[n] == g]
+        med = np.median(np.array([np.asarray(exposures[n][2], float).reshape(3) for n in members]), axis=0)
+        rows.append({"flight": f + 1, "quality": "not fixed" if not_fixed else "fixed",
+                     "status": sorted({int(exposures[n][1]) for n in members}), "images": len(members),
+                     "median_position_sigma_enu_m": med.round(4).tolist(),
+                     "sigma_enu_m": np.maximum(default, med).round(4).tolist()})
+    return group_of, rows
+
+
 def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: int,
-                        base_position: dict | None) -> dict | None:
+                        base_position: dict | None, exposures: dict | None = None) -> dict | None:
     """The prior of the per-flight GNSS offsets (docs/georeferencing.md, "Several flights"), or None where they
-    are not modelled: the joint adjustment on PPK or RTK camera positions, ``opts.flight_offsets`` on, or auto
-    with two or more flights or a base position that is not surveyed. Common part (every flight): the base
+    are not modelled: PPK or RTK camera positions, ``opts.flight_offsets`` on, or auto with two or more flights,
+    a base position that is not surveyed, or exposures that are not fixed. Common part (every flight): the base
     position's sigma from the PPK summary where it states one (not surveyed), else 0; each flight's own part:
-    ``opts.flight_offset_sigma_m`` (horizontal, vertical)."""
-    if opts.mode != "joint" or opts.flight_offsets == "off" or gnss is None or n_flights < 1:
+    ``opts.flight_offset_sigma_m`` (horizontal, vertical), raised per group of exposures by their quality
+    (``flight_offset_groups``) where ``exposures`` (image -> flight, status, sigma E/N/U) is given."""
+    if opts.flight_offsets == "off" or gnss is None or n_flights < 1:
         return None
     if gnss.from_photos and gnss.kind != "rtk":      # metre-level EXIF GPS: its own sigma dwarfs any offset
         return None
@@ -332,7 +359,9 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
         common_source = f"base position not surveyed ({base_position.get('source')}): its sigma"
     h, v = (float(x) for x in opts.flight_offset_sigma_m)
     own = np.array([h, h, v])
-    if opts.flight_offsets == "auto" and n_flights < 2 and not np.any(common > 0):
+    group_of, groups = flight_offset_groups(exposures, own) if exposures else (None, None)
+    not_fixed = bool(groups) and any(g["quality"] != "fixed" for g in groups)
+    if opts.flight_offsets == "auto" and n_flights < 2 and not np.any(common > 0) and not not_fixed:
         return None
     if not np.any(common > 0) and not np.any(own > 0):
         return None                                # a zero prior: nothing to model
@@ -340,10 +369,27 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
         raise ProcessingError(f"flight_offset_sigma_m {opts.flight_offset_sigma_m}: a zero sigma with no base-position "
                               "sigma to add to it leaves an axis without a prior; give positive sigmas or "
                               "flight_offsets off")
-    return {"common_sigma_enu_m": common.round(4).tolist(), "flight_sigma_enu_m": own.round(4).tolist(),
-            "common_source": common_source,
-            "flight_source": "flight_offset_sigma_m (an assumption: a survey-grade RTK specification, 1 cm + 1 ppm "
-                             "horizontally, 1.5 cm + 1 ppm vertically)"}
+    out = {"common_sigma_enu_m": common.round(4).tolist(), "flight_sigma_enu_m": own.round(4).tolist(),
+           "common_source": common_source,
+           "flight_source": "flight_offset_sigma_m (an assumption: a survey-grade RTK specification, 1 cm + 1 ppm "
+                            "horizontally, 1.5 cm + 1 ppm vertically)"}
+    if groups:
+        out.update(group_of_image=group_of, groups=groups,
+                   flight_source=out["flight_source"] + "; per group of a flight's exposures (fixed / not fixed) the "
+                   "larger of it and the median of the exposures' own sigmas (" +
+                   ("the photos' RtkStd" if gnss.from_photos else "the PPK's") + ")")
+    return out
+
+
+def _offset_groups_of(flight_prior: dict, gn: list[str]) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """The per-flight offsets of the GNSS positions ``gn``: the offset (0..F-1, among those present) of each
+    position, the offsets' prior covariance (3F, 3F) and the groups present (flight_offset_prior's)."""
+    key = flight_prior.get("group_of_image") or flight_prior["flights"]
+    present = sorted({key[n] for n in gn})
+    groups = flight_prior.get("groups")
+    own = np.array([groups[g]["sigma_enu_m"] for g in present]) if groups else flight_prior["flight_sigma_enu_m"]
+    return (np.array([present.index(key[n]) for n in gn], int),
+            flight_offset_prior_cov(len(present), flight_prior["common_sigma_enu_m"], own), present)
 
 
 def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: ControlData, gnss_enu: dict,
@@ -375,7 +421,7 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
         basis.append({"kind": "base position", "source": base_position.get("source"), "sigma_enu_m": base_sigma})
         text.append("the base position they are relative to: " + str(base_position.get("text") or
                                                                     base_position.get("source")))
-    fo = adj.stats.get("flight_offsets")
+    fo = adj.stats.get("flight_offsets") if adj.stats.get("mode") != "gcp" else None   # gcp: lever arm, delay only
     if fo:
         csig = np.sqrt(np.einsum("nii->ni", np.asarray(adj.centre_cov_enu_m2, float)))
         ch, cv = float(np.median(np.hypot(csig[:, 0], csig[:, 1]) / np.sqrt(2))), float(np.median(csig[:, 2]))
@@ -611,8 +657,9 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if gnss is not None and gnss_enu:
         flights, flights_source = image_flights(gnss, found.camera_offsets_csv, opts.flight_gap_s)
         flights = {n: f for n, f in flights.items() if n in gnss_enu}
+        exposures = {n: (f, gnss_enu[n][3], np.sqrt(np.abs(np.diag(gnss_enu[n][2])))) for n, f in flights.items()}
         flight_prior = flight_offset_prior(opts, gnss, len(set(flights.values())),
-                                           _ppk_summary(out).get("base_position"))
+                                           _ppk_summary(out).get("base_position"), exposures)
         if flight_prior is not None:
             flight_prior.update(flights=flights, flights_from=flights_source)
 
@@ -633,6 +680,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
             from ..photo import colmap_api
 
             rec = colmap_api.read_model(sfm_dir / "sparse" / "0")
+    sfm_reused = rec is not None
     if rec is None:
         import warnings as _warnings
 
@@ -666,6 +714,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     t0 = time.perf_counter()
     summary = _write_outputs(out, image_dir, opts, frame, rec, control, result, gnss, warnings, cameras)
     summary["images"]["left_out"] = left_out
+    summary["sfm"]["reused"] = sfm_reused   # an earlier model of the same photos and options (sfm_inputs_key)
     summary["absolute_accuracy"] = _absolute_accuracy(gnss, result, control, gnss_enu,
                                                       _ppk_summary(out).get("base_position"))
     summary["inputs"] = found.summary()
@@ -964,10 +1013,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if prior is not None:
             prob.intrinsics_prior, prob.intrinsics_prior_sigma = prior[0].copy(), prior[1].copy()
         if flight_prior is not None and gn:   # a common offset per flight (flight_offset_prior)
-            present = sorted({flight_prior["flights"][n] for n in gn})
-            prob.gnss_flight = np.array([present.index(flight_prior["flights"][n]) for n in gn], int)
-            prob.flight_offset_prior_cov_m2 = flight_offset_prior_cov(len(present), flight_prior["common_sigma_enu_m"],
-                                                                      flight_prior["flight_sigma_enu_m"])
+            prob.gnss_flight, prob.flight_offset_prior_cov_m2, _ = _offset_groups_of(flight_prior, gn)
         return prob, gn, gcp_names
 
     free = np.tile(cm.free_mask(opts.camera_model), (G, 1))
@@ -1018,7 +1064,9 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                       "control_points_used": gcps})
         if res.flight_offset_enu_m is not None:
             flight_cov, cam_flight_cov = res.flight_offset_cov_m2, res.camera_flight_cov_m2
-            stats["flight_offsets"] = _flight_offsets_summary(flight_prior, gn, res, bool(gcps))
+            stats["flight_offsets"] = _flight_offsets_summary(
+                flight_prior, gn, res, "the control points" if gcps else "nothing: no control point, the prior is "
+                "propagated into the covariances (only the flights' differences are measured, by the tie points)")
         intr = prob.intrinsics
         isig = _intrinsics_sigmas(res, G, fisheye)
         R, C = prob.R_cam_to_enu, prob.centre_enu_m
@@ -1036,9 +1084,19 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
             raise ProcessingError("mode 'gcp' estimates the lever arm and delay from GNSS camera positions: none found")
         k_idx = [im_idx[n] for n in gn]
         cov = np.array([gnss_enu[n][2] for n in gn]) + res.camera_cov[k_idx][:, 3:, 3:] + np.eye(3) * 1e-6
+        fl, fl_cov = (None, None) if flight_prior is None else _offset_groups_of(flight_prior, gn)[:2]
         fit = estimate_lever_arm_delay(R[k_idx], C[k_idx], np.array([gnss_enu[n][0] for n in gn]),
                                        np.array([gnss_enu[n][1] for n in gn]), cov, estimate_lever=est_lever,
-                                       lever_arm_cam_m=lever0, estimate_delay=opts.estimate_delay, delay_s=opts.delay_s)
+                                       lever_arm_cam_m=lever0, estimate_delay=opts.estimate_delay, delay_s=opts.delay_s,
+                                       flight=fl, offset_prior_cov_m2=fl_cov)
+        if fit.flight_offset_enu_m is not None:   # they move the lever arm and delay only (the cameras: control)
+            stats["flight_offsets"] = _flight_offsets_summary(
+                flight_prior, gn, fit, "the control points' camera orientations (the offsets enter the lever arm and "
+                "delay only; the vertical offsets and the lever arm's camera z are told apart by the prior alone)")
+            if est_lever:
+                warnings.append("mode 'gcp' with per-flight GNSS offsets: the lever arm's component along the camera "
+                                "axis cannot be told from the flights' vertical GNSS offsets (a nadir camera); its "
+                                "sigma includes their prior (lever_arm_delay.json)")
         lever, delay = fit.lever_arm_cam_m, fit.delay_s
         if est_lever:
             lever_sigma = np.array([fit.sigma(k) for k in ("lever_x", "lever_y", "lever_z")])
@@ -1058,11 +1116,12 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     else:  # similarity
         by_name = rec.image_by_name()
         gn = [n for n in names if n in gnss_enu]
+        fl, fl_cov = (None, None) if flight_prior is None else _offset_groups_of(flight_prior, gn)[:2]
         fit = fit_similarity_delay(np.array([by_name[n].centre for n in gn]),
                                    np.array([by_name[n].R_cam_from_world.T for n in gn]),
                                    np.array([gnss_enu[n][0] for n in gn]), np.array([gnss_enu[n][1] for n in gn]),
                                    np.array([gnss_enu[n][2] for n in gn]) + np.eye(3) * 1e-5, lever0,
-                                   estimate_delay=opts.estimate_delay)
+                                   estimate_delay=opts.estimate_delay, flight=fl, offset_prior_cov_m2=fl_cov)
         s, Rs, t = fit.similarity
         R = np.array([Rs @ im.R_cam_from_world.T for im in images])
         C = np.array([s * Rs @ im.centre + t for im in images])
@@ -1078,6 +1137,15 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                               "residual_enu_m": (-fit.residual_enu_m[k]).round(4).tolist(), "outlier": bool(fit.outlier[k])})
         stats.update({"scale": s, "sigma0": fit.sigma0, "gnss_outliers": int(fit.outlier.sum())})
         ccov = np.repeat((np.mean([np.trace(gnss_enu[n][2]) for n in gn]) / 3 * fit.sigma0 ** 2 * np.eye(3))[None], len(names), 0)
+        if fit.flight_offset_enu_m is not None:
+            # the similarity's own uncertainty, which now holds the offsets' (its translation and their mean are
+            # told apart by their prior only), added to each centre; the check points get their share
+            sim_cov, cam_flight_cov = similarity_centre_cov(fit, np.array([im.centre for im in images]))
+            ccov = ccov + sim_cov
+            flight_cov = fit.flight_offset_cov_m2
+            stats["flight_offsets"] = _flight_offsets_summary(
+                flight_prior, gn, fit, "nothing: the similarity's translation and the offsets' mean are told apart by "
+                "the prior only, which is propagated into the covariances (the flights' differences are measured)")
         P, prgb = s * pts @ Rs.T + t, rec.points_rgb
 
     final = (res.problem, res.sigma0) if opts.mode in ("joint", "gcp") else None
@@ -1115,28 +1183,33 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                      readout_sigma_s=readout_sigma, flight_offset_cov_m2=flight_cov, camera_flight_cov_m2=cam_flight_cov)
 
 
-def _flight_offsets_summary(flight_prior: dict, gn: list[str], res, tied: bool) -> dict:
-    """The summary's flight_offsets: the model, its prior, and per flight the images, the estimated offset
-    (E, N, U) and its sigma."""
-    present = sorted({flight_prior["flights"][n] for n in gn})
+def _flight_offsets_summary(flight_prior: dict, gn: list[str], res, estimated_by: str) -> dict:
+    """The summary's flight_offsets: the model, its prior, and per offset (a flight, or its fixed / not-fixed
+    exposures where the prior follows the positions' quality) the images, the estimated offset (E, N, U) and its
+    sigma. ``res``: anything with ``flight_offset_enu_m`` and ``flight_offset_cov_m2``."""
+    key = flight_prior.get("group_of_image") or flight_prior["flights"]
+    present = sorted({key[n] for n in gn})
+    groups = flight_prior.get("groups")
     sd = np.sqrt(np.abs(np.diag(res.flight_offset_cov_m2))).reshape(-1, 3)
     rows = []
-    for k, f in enumerate(present):
-        imgs = [n for n in gn if flight_prior["flights"][n] == f]
-        rows.append({"flight": int(f) + 1, "images": len(imgs), "first_image": imgs[0], "last_image": imgs[-1],
-                     "offset_enu_m": res.flight_offset_enu_m[k].round(4).tolist(), "sigma_enu_m": sd[k].round(4).tolist()})
+    for k, g in enumerate(present):
+        imgs = [n for n in gn if key[n] == g]
+        row = {"flight": groups[g]["flight"] if groups else int(g) + 1, "images": len(imgs), "first_image": imgs[0],
+               "last_image": imgs[-1], "offset_enu_m": np.asarray(res.flight_offset_enu_m)[k].round(4).tolist(),
+               "sigma_enu_m": sd[k].round(4).tolist()}
+        if groups:
+            row.update({"quality": groups[g]["quality"], "status": groups[g]["status"],
+                        "median_position_sigma_enu_m": groups[g]["median_position_sigma_enu_m"],
+                        "prior_sigma_enu_m": groups[g]["sigma_enu_m"]})
+        rows.append(row)
     return {"model": "C = A(trigger) - o_flight + R L + v dt (o_flight: the error common to the flight's GNSS "
                      "positions, measured minus true, E/N/U)",
             "flights_from": flight_prior["flights_from"],
             "prior": {k: flight_prior[k] for k in ("common_sigma_enu_m", "common_source", "flight_sigma_enu_m",
                                                    "flight_source")},
-            "estimated_by": "the control points" if tied else "nothing: no control point, the prior is propagated "
-                                                               "into the covariances (only the flights' differences "
-                                                               "are measured, by the tie points)",
+            "estimated_by": estimated_by,
             "flights": rows}
 
-
-# ------------------------------------------------------------------------------------------- doming
 
 def _doming(adj: _Adjusted, control: ControlData, frame: ProjectFrame, checks: ResidualTable, warnings: list) -> dict:
     """The block's bending (adjustment/doming.py) from the adjusted camera centres against their GNSS /

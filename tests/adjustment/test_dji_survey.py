@@ -103,20 +103,25 @@ def test_gimbal_offsets_ignored_fail_visibly(dji_survey, ppk_run, tmp_path):
     shutil.copytree(ppk_run / "ppk", out / "ppk")
     shutil.copytree(ppk_run / "sfm", out / "sfm")
     assert main(["georef", str(survey), "--out", str(out), "--control", "none", "--no-leave-one-out"]) == 0
+    assert json.loads((out / "georef_summary.json").read_text())["sfm"]["reused"]
     rmse_ignored, _ = _check_rmse_3d(out)
     rmse_used, _ = _check_rmse_3d(ppk_run)
     print(f"check points 3D RMSE: MRK offsets used {1000 * rmse_used:.1f} mm, ignored {1000 * rmse_ignored:.1f} mm")
     assert rmse_ignored > 0.10 and rmse_ignored > 5 * rmse_used
 
 
-def test_rtk_photos_alone(dji_survey, tmp_path):
+def test_rtk_photos_alone(dji_survey, ppk_run, tmp_path):
     """No raw log, no base: the photos' RTK positions with their sigmas: check points <= 3 cm, and the
     adjusted camera centres' errors consistent with their stated sigmas (ANEES within [0.5, 2])."""
     survey = _copy_without(dji_survey, tmp_path / "site",
                            lambda p: p.name.endswith("_PPKRAW.bin") or p.parent.name == "base")
     out = tmp_path / "out"
+    out.mkdir()
+    # the same photos, so the same SfM (its key does not hold the positions of an exhaustive block)
+    shutil.copytree(ppk_run / "sfm", out / "sfm")
     assert main(["georef", str(survey), "--out", str(out), "--control", "none", "--no-leave-one-out"]) == 0
     summary = json.loads((out / "georef_summary.json").read_text())
+    assert summary["sfm"]["reused"]          # other positions, the same photos: the model is not made again
     assert "RTK camera positions in the photos' XMP" in summary["gnss_source"]
     rmse, n = _check_rmse_3d(out)
     assert n >= 4 and rmse <= 0.03, rmse

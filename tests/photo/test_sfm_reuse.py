@@ -34,9 +34,16 @@ def test_the_key_follows_the_photos_and_the_options(tmp_path):
     (d / "IMG_3.JPG").unlink()
     assert sfm_inputs_key(d, opts) == k0                                       # back to the first set
     assert sfm_inputs_key(d, SfmOptions(camera_model="RADIAL")) != k0           # another camera model
-    with_pos = SfmOptions(camera_model="OPENCV", positions={"IMG_0.JPG": (1.0, 2.0, 3.0)})
-    assert sfm_inputs_key(d, with_pos) != k0                                   # GNSS positions steer matching
-    moved = SfmOptions(camera_model="OPENCV", positions={"IMG_0.JPG": (1.004, 2.0, 3.0)})
-    assert sfm_inputs_key(d, moved) == sfm_inputs_key(d, with_pos)            # to the centimetre
+    # GNSS positions steer spatial matching only: keyed (to the centimetre) when the matcher is spatial
+    pos = {"IMG_0.JPG": (1.0, 2.0, 3.0)}
+    exhaustive = SfmOptions(camera_model="OPENCV", positions=pos)              # 3 photos: exhaustive
+    assert sfm_inputs_key(d, exhaustive) == k0
+    for spatial in ({"matcher": "spatial"}, {"exhaustive_max_images": 2}):
+        with_pos = SfmOptions(camera_model="OPENCV", positions=pos, **spatial)
+        k_pos = sfm_inputs_key(d, with_pos)
+        other = SfmOptions(camera_model="OPENCV", positions={"IMG_0.JPG": (1.5, 2.0, 3.0)}, **spatial)
+        assert sfm_inputs_key(d, other) != k_pos                               # another position: matched anew
+        moved = SfmOptions(camera_model="OPENCV", positions={"IMG_0.JPG": (1.004, 2.0, 3.0)}, **spatial)
+        assert sfm_inputs_key(d, moved) == k_pos                               # to the centimetre
     shutil.copy(d / "IMG_0.JPG", d / "IMG_9.jpeg")
     assert sfm_inputs_key(d, opts) != k0
