@@ -11,7 +11,35 @@ line and header fields; else ``431``). The request body's deadline is the applic
 
 from __future__ import annotations
 
+import logging
+import time
+
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+log = logging.getLogger("georef.http")
+
+
+class _OncePerInterval:
+    """One log line per ``interval_s`` for a kind of refusal (with the count of those not logged since), so
+    that a client repeating a refused request cannot fill the log: refusals are logged, never a traceback."""
+
+    def __init__(self, interval_s: float = 10.0):
+        self.interval_s = interval_s
+        self.last: dict[str, float] = {}
+        self.quiet: dict[str, int] = {}
+
+    def __call__(self, kind: str, msg: str) -> bool:
+        now = time.monotonic()
+        if now - self.last.get(kind, -1e9) < self.interval_s:
+            self.quiet[kind] = self.quiet.get(kind, 0) + 1
+            return False
+        more = self.quiet.pop(kind, 0)
+        self.last[kind] = now
+        log.warning(msg + (f" (and {more} more since the last such line)" if more else ""))
+        return True
+
+
+refusal_log = _OncePerInterval()
 
 
 class GuardedHttpToolsProtocol(HttpToolsProtocol):
@@ -23,6 +51,8 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._header_bytes = 0
         self._header_oversize = False
         self._header_timer = None
+        if not isinstance(self.logger, _QuietWhenOversize):
+            self.logger = _QuietWhenOversize(self, self.logger)
         self._arm_header_timer()
 
     def connection_lost(self, exc) -> None:
@@ -42,6 +72,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def _headers_too_slow(self) -> None:
         self._header_timer = None
         if not self.transport.is_closing():
+            client = (self.client or ("?",))[0]
+            refusal_log("408", f"408: request headers not complete within {self.header_timeout_s:g} s (client "
+                               f"{client}); connection closed")
             self._send_plain(408, "request headers not received in time")
 
     # --- parser callbacks
@@ -75,6 +108,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def send_400_response(self, msg: str) -> None:
         # uvicorn answers a parser error with 400; the parser stopped here because the headers were too large
         if self._header_oversize:
+            client = (self.client or ("?",))[0]
+            refusal_log("431", f"431: request headers over {self.max_header_bytes} bytes refused (client {client}); "
+                               "connection closed")
             self._send_plain(431, f"request headers larger than {self.max_header_bytes} bytes")
             return
         super().send_400_response(msg)
@@ -88,6 +124,55 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
                 f"content-length: {len(body)}\r\nconnection: close\r\n\r\n").encode("ascii")
         self.transport.write(head + body)
         self.transport.close()
+
+
+class _QuietWhenOversize:
+    """uvicorn's logger for one connection, without its "Invalid HTTP request received." warning when the
+    parser was stopped by the header limit (send_400_response logs one line of its own instead)."""
+
+    def __init__(self, proto: "GuardedHttpToolsProtocol", logger):
+        self._proto, self._logger = proto, logger
+
+    def warning(self, msg, *args, **kwargs):
+        if not self._proto._header_oversize:
+            self._logger.warning(msg, *args, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._logger, name)
+
+
+class SettingsHttpProtocol(GuardedHttpToolsProtocol):
+    """The guarded protocol with the limits of the GEOREF_ settings, for uvicorn's command line (the
+    production shape: ``uvicorn backend.main:app --http backend.core.http_protocol:SettingsHttpProtocol``,
+    Dockerfile), so that the API is safe from slow and oversized headers without nginx in front too."""
+
+    _configured = False
+
+    def __init__(self, *args, **kwargs):
+        cls = type(self)
+        if not cls._configured:
+            from .settings import get_settings
+
+            settings = get_settings()
+            cls.header_timeout_s = float(settings.request_header_timeout_s)
+            cls.max_header_bytes = int(settings.max_request_header_bytes)
+            cls._configured = True
+            _raise_open_files_limit()
+        super().__init__(*args, **kwargs)
+
+
+def _raise_open_files_limit() -> None:
+    """Each client connection is a file descriptor: the soft limit (often 1024) raised to the hard one, so
+    that many idle or slow connections do not stop the server from accepting new ones."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        want = hard if hard != resource.RLIM_INFINITY else 65536
+        if soft != resource.RLIM_INFINITY and soft < want:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+    except (ImportError, ValueError, OSError):
+        pass
 
 
 def guarded_protocol(settings) -> type[GuardedHttpToolsProtocol]:

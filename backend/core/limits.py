@@ -68,6 +68,7 @@ _UPLOAD_CHUNK_PATH = re.compile(r"^/api/v1/uploads/[^/]+/?$")
 # a site's design surface file (LandXML / DXF / GeoTIFF) is sent whole: it may be as large as an upload chunk
 _DESIGN_FILE_PATH = re.compile(r"^/api/v1/sites/[^/]+/design/file/?$")
 MEMORY_BODY_BYTES = 1024 * 1024     # larger bodies (upload chunks) are spooled to a file while they arrive
+SPOOLED_BODY_KEY = "georef.spooled_body"   # the ASGI scope's entry for a body spooled to a file (a _Body)
 
 
 class RequestBodyGuard:
@@ -131,6 +132,10 @@ class RequestBodyGuard:
             if outcome is not None:
                 await _refuse(send, *outcome)
                 return
+            if body.file is not None:
+                # a spooled body: the route may take the file itself (request_body.body_in_temp_file)
+                # instead of reading it back and writing it again (upload chunks: written once)
+                scope[SPOOLED_BODY_KEY] = body
             await self.app(scope, body.replay(receive), send)
         finally:
             body.close()
@@ -168,22 +173,30 @@ def _timeout(received: int, timeout_s: float, min_rate: int) -> tuple[int, str]:
 
 
 class _Body:
-    """A request body being received: in memory, or in a spool file past MEMORY_BODY_BYTES."""
+    """A request body being received: in memory, or in a spool file (a named file of ``spool_dir``) past
+    MEMORY_BODY_BYTES. ``take()`` hands the spool file over (it is then the taker's to move or remove)."""
 
     def __init__(self, spool_dir):
         self.spool_dir = spool_dir
         self.parts: list[bytes] = []
         self.size = 0
         self.file = None
+        self.path = None
+        self.taken = False
+        self.read_started = False
 
     def write(self, data: bytes) -> None:
         if not data:
             return
         if self.file is None and self.size + len(data) > MEMORY_BODY_BYTES:
+            import os
             import tempfile
+            from pathlib import Path
 
             self.spool_dir.mkdir(parents=True, exist_ok=True)
-            self.file = tempfile.TemporaryFile(dir=self.spool_dir, prefix="body-")
+            fd, name = tempfile.mkstemp(dir=self.spool_dir, prefix="body-")
+            self.path = Path(name)
+            self.file = os.fdopen(fd, "w+b")
             for p in self.parts:
                 self.file.write(p)
             self.parts = []
@@ -192,6 +205,15 @@ class _Body:
         else:
             self.parts.append(data)
         self.size += len(data)
+
+    def take(self):
+        """The spool file's path, its bytes all written, for the caller to keep (rename) or remove; None
+        when the body is not in a file or was already read or taken."""
+        if self.file is None or self.taken or self.read_started:
+            return None
+        self.file.flush()
+        self.taken = True
+        return self.path
 
     def replay(self, receive):
         """An ASGI receive that gives the stored body, then hands over to the connection's own (which
@@ -207,6 +229,9 @@ class _Body:
             if self.file is None:
                 state["done"] = True
                 return {"type": "http.request", "body": b"".join(self.parts), "more_body": False}
+            if self.taken:
+                raise RuntimeError("the request body was taken as a file")
+            self.read_started = True
             data = self.file.read(MEMORY_BODY_BYTES)
             more = self.file.tell() < self.size
             if not more:
@@ -219,6 +244,8 @@ class _Body:
         if self.file is not None:
             self.file.close()
             self.file = None
+            if not self.taken:
+                self.path.unlink(missing_ok=True)
         self.parts = []
 
 

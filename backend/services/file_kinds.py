@@ -26,6 +26,13 @@ from pathlib import Path
 GPS_EPOCH = datetime(1980, 1, 6)
 HEAD_BYTES = 65536
 TEXT_TABLE_MAX_BYTES = 50 * 1024**2
+# a packed (gzip / Unix-compress) RINEX file's epoch scan unpacks it whole: at most PACKED_MAX_RATIO times
+# its packed size (a decompression bomb: LZW and deflate data can be crafted to unpack to thousands of
+# times its size) and PACKED_MAX_UNPACKED_BYTES in all, within SCAN_TIME_BUDGET_S; else 422 naming the file
+PACKED_MAX_RATIO = 200.0
+PACKED_MAX_UNPACKED_BYTES = 8 * 1024**3
+SCAN_TIME_BUDGET_S = 120.0
+SCAN_MAX_LINE_CHARS = 65536           # longer lines are read in pieces of this size (memory bound)
 
 KINDS = ("rinex-obs", "rinex-nav", "ubx", "rtcm3", "dji-mrk", "image", "events", "points", "gcp-list",
          "survey-metadata", "archive", "site-calibration")
@@ -112,36 +119,77 @@ def _decompressed_head(path: Path, raw: bytes) -> tuple[bytes, str | None]:
         size = path.stat().st_size
         if size > 512 * 1024**2:
             raise UnrecognisedFile("Unix-compress (.Z) file larger than 512 MB; please send it uncompressed or gzip")
-        try:   # only the head is unpacked: bounded work whatever the file's size
-            return unix_uncompress(path.read_bytes(), path, limit=HEAD_BYTES), "compress"
+        try:   # only the head is unpacked (and only what it needs is read): bounded work whatever the size
+            with open(path, "rb") as f:
+                return unix_uncompress(f, path, limit=HEAD_BYTES), "compress"
         except InputFileError as exc:
             raise UnrecognisedFile(exc.problem) from None
     return raw, None
 
 
+def _unpack_cap_bytes(path: Path) -> int:
+    return min(PACKED_MAX_UNPACKED_BYTES, max(int(path.stat().st_size * PACKED_MAX_RATIO), HEAD_BYTES))
+
+
 def _iter_text_lines(path: Path, packing: str | None):
+    """The file's lines (pieces of at most SCAN_MAX_LINE_CHARS of a longer one), packed or not. Packed
+    data is unpacked within the bounds above (UnrecognisedFile past them: a decompression bomb)."""
+    import time
+
     if packing == "gzip":
         import gzip
 
-        with gzip.open(path, "rt", encoding="latin-1", newline="") as f:
-            yield from f
+        cap = _unpack_cap_bytes(path)
+        deadline = time.monotonic() + SCAN_TIME_BUDGET_S
+        with gzip.open(path, "rb") as raw:
+            text = io.TextIOWrapper(raw, encoding="latin-1", newline="")
+            try:
+                yield from _bounded_lines(text, lambda: raw.tell(), cap, deadline, "gzip")
+            except (OSError, EOFError, zlib.error) as exc:
+                raise UnrecognisedFile(f"gzip data is truncated or corrupt ({exc})") from None
     elif packing == "compress":
         import tempfile
 
-        import ncompress
+        from georef_core.errors import InputFileError
+        from georef_core.gnss.compressed_files import unix_uncompress_to_file
 
-        # unpacked into a temporary file (C decoder, ~40 MB/s), read line by line: bounded memory
+        # unpacked into a temporary file (C decoder, ~40 MB/s), read line by line: bounded memory; the
+        # unpacking bounded in size and time (the C decoder is stopped as soon as either bound is passed)
         with tempfile.TemporaryFile() as tmp:
             try:
                 with open(path, "rb") as src:
-                    ncompress.decompress(src, tmp)
-            except (ValueError, OSError, EOFError) as exc:
-                raise UnrecognisedFile(f"Unix-compress (.Z) data is truncated or corrupt ({exc})") from None
+                    unix_uncompress_to_file(src, tmp, path, max_bytes=_unpack_cap_bytes(path),
+                                            time_budget_s=SCAN_TIME_BUDGET_S)
+            except InputFileError as exc:
+                raise UnrecognisedFile(exc.problem) from None
             tmp.seek(0)
-            yield from io.TextIOWrapper(tmp, encoding="latin-1", newline="")
+            yield from _bounded_lines(io.TextIOWrapper(tmp, encoding="latin-1", newline=""), None, None, None, "")
     else:
         with open(path, "rt", encoding="latin-1", newline="") as f:
-            yield from f
+            yield from _bounded_lines(f, None, None, None, "")
+
+
+def _bounded_lines(f, unpacked_bytes, cap, deadline, packing: str):
+    """Lines of a text file; past ``cap`` unpacked bytes or the monotonic ``deadline``: UnrecognisedFile."""
+    import time
+
+    read = 0
+    next_check = 1 << 20
+    while True:
+        line = f.readline(SCAN_MAX_LINE_CHARS)
+        if not line:
+            return
+        read += len(line)
+        if cap is not None and read >= next_check:        # every MiB
+            next_check = read + (1 << 20)
+            if unpacked_bytes() > cap:
+                raise UnrecognisedFile(f"{packing} data unpacks to more than {cap} bytes (over {PACKED_MAX_RATIO:g} "
+                                       "times its packed size, or the limit for one file): refused as a "
+                                       "decompression bomb; send the file unpacked")
+            if time.monotonic() > deadline:
+                raise UnrecognisedFile(f"{packing} data took more than {SCAN_TIME_BUDGET_S:g} s to unpack and scan: "
+                                       "refused; send the file unpacked or split it")
+        yield line
 
 
 def _gps_seconds(y: int, mo: int, d: int, h: int, mi: int, s: float) -> float:

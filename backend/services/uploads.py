@@ -158,14 +158,16 @@ def check_chunk(ctx: Ctx, upload_id: str, start: int, end: int, total: int | Non
     return None
 
 
-def store_chunk(ctx: Ctx, upload_id: str, start: int, end: int, data_path: Path) -> Upload:
-    """Store a received chunk (already written to data_path) and advance received_bytes atomically."""
+def store_chunk(ctx: Ctx, upload_id: str, start: int, end: int, data_path: Path, move: bool = False) -> Upload:
+    """Store a received chunk (already written to data_path) and advance received_bytes atomically.
+    ``move``: data_path is handed to the store (renamed into place on a local store: the chunk's bytes
+    are written once, where they were received)."""
     length = data_path.stat().st_size
     if length != end - start:
         raise Unprocessable(f"received {length} bytes but Content-Range announced {end - start} (interrupted?); "
                             "resend the chunk")
     key = f"uploads/{upload_id}/{start:016d}-{secrets.token_hex(4)}"
-    ctx.storage.put_file(key, data_path)
+    ctx.storage.put_file(key, data_path, move=move)
     n = ctx.db.execute(update(Upload).where(Upload.id == upload_id, Upload.state == "open",
                                             Upload.received_bytes == start)
                        .values(received_bytes=end, updated_at=utcnow())).rowcount

@@ -27,8 +27,10 @@ def sha256_of_file(path) -> str:
 
 class Storage(ABC):
     @abstractmethod
-    def put_file(self, key: str, path: Path) -> None:
-        """Store a local file under key (atomically: a reader sees the whole file or nothing)."""
+    def put_file(self, key: str, path: Path, move: bool = False) -> None:
+        """Store a local file under key (atomically: a reader sees the whole file or nothing). ``move``: the
+        file is the store's afterwards (a local store renames it into place instead of copying its bytes;
+        the file is gone once this returns)."""
 
     @abstractmethod
     def put_bytes(self, key: str, data: bytes) -> None: ...

@@ -40,11 +40,40 @@ class LocalStorage(Storage):
                 pass
             raise
 
-    def put_file(self, key: str, path: Path) -> None:
+    def put_file(self, key: str, path: Path, move: bool = False) -> None:
+        if move and self._move_in(key, Path(path)):
+            return
+
         def w(f):
             with open(path, "rb") as src:
                 shutil.copyfileobj(src, f, HASH_CHUNK)
         self._write_atomic(key, w)
+        if move:
+            Path(path).unlink(missing_ok=True)
+
+    def _move_in(self, key: str, path: Path) -> bool:
+        """Rename a local file into place (its bytes are written once, where they were received): synced
+        first, so that the stored object survives a crash as a copied one does. False where a rename cannot
+        do it (another file system): the caller copies."""
+        dest = self._path(key)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "rb+") as f:
+            os.fsync(f.fileno())
+        try:
+            os.replace(path, dest)
+        except OSError as exc:
+            if exc.errno in (errno.EXDEV, errno.EPERM, errno.EACCES):
+                return False
+            raise
+        try:
+            fd = os.open(dest.parent, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        except OSError:
+            pass
+        return True
 
     def put_bytes(self, key: str, data: bytes) -> None:
         self._write_atomic(key, lambda f: f.write(data))

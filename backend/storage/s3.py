@@ -32,10 +32,12 @@ class S3Storage(Storage):
             self.client.create_bucket(Bucket=self.bucket)
         self._bucket_checked = True
 
-    def put_file(self, key: str, path: Path) -> None:
+    def put_file(self, key: str, path: Path, move: bool = False) -> None:
         self._ensure_bucket()
         with _full_as_enospc(key):
             self.client.upload_file(str(path), self.bucket, key)   # multipart above 8 MB, atomic on completion
+        if move:
+            Path(path).unlink(missing_ok=True)
 
     def put_bytes(self, key: str, data: bytes) -> None:
         self._ensure_bucket()

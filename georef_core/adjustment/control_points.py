@@ -75,6 +75,8 @@ def parse_crs(text: str, path=None) -> str:
 
 
 POINT_FIELDS = ("easting_m", "northing_m", "ellipsoidal_height_m")
+# no coordinate of a point on Earth exceeds this in any CRS (projected: < 4e7 m; geocentric: < 7e6 m)
+MAX_ABS_COORDINATE = 1e8
 
 
 def parse_points_table(text: str, default_role: str = "check", source=None) -> list[dict]:
@@ -110,6 +112,9 @@ def parse_points_table(text: str, default_role: str = "check", source=None) -> l
                 raise InputFileError(source, f"{head[i]} {r[i]!r} is not a number", line=k) from None
             if not math.isfinite(v):
                 raise InputFileError(source, f"{head[i]} {r[i]!r} is not finite", line=k)
+            if abs(v) > MAX_ABS_COORDINATE:   # 1e308 ran to a "succeeded" run with an empty residual table
+                raise InputFileError(source, f"{head[i]} {r[i]!r} is not a place on Earth (over "
+                                             f"{MAX_ABS_COORDINATE:g} in absolute value in any CRS)", line=k)
             xyz.append(v)
         name = r[iname].strip() if iname < len(r) else ""
         if not name:

@@ -232,3 +232,115 @@ def test_a_really_full_disk(small_disk, tmp_path):
         assert p.client().get("/api/v1/health").status_code == 200
     finally:
         close_platform(p)
+
+
+# ----------------------------------------------------------------------------------------------- bounded unpacking
+
+
+def _rinex_obs_head() -> bytes:
+    src = (Path(__file__).resolve().parents[1] / "data" / "rinex" / "3034265G_head5.21O").read_bytes()
+    return b"".join(src.splitlines(keepends=True)[:120])
+
+
+def test_a_unix_compress_bomb_is_refused_naming_the_file(world):
+    """A valid RINEX header followed by 4 MB of spaces, Unix-compressed: 9 kB that unpack 450 times over (a
+    crafted LZW stream reaches thousands). Before, the upload's epoch scan unpacked all of it onto the
+    work disk, however much it was (a 512 MB .Z could unpack to terabytes); now the unpacking stops past
+    200 times the packed size: 422 naming the file, in a fraction of a second."""
+    import time
+
+    ncompress = pytest.importorskip("ncompress")
+    bomb = ncompress.compress(_rinex_obs_head() + b" " * 4_000_000 + b"\n")
+    assert len(bomb) * 200 < 4_000_000
+    t0 = time.monotonic()
+    r = upload_bytes(world["a"], world["survey"], "base.21O.Z", bomb, kind="base")
+    body = _problem(r, 422, "base.21O.Z", "decompression bomb", "200 times")
+    assert time.monotonic() - t0 < 3, body
+    # the same header with real epochs, packed the same way, is accepted (the bound is not in the way)
+    ok = ncompress.compress(_rinex_obs_head())
+    r = upload_bytes(world["a"], world["survey"], "base.21O.Z", ok, kind="base")
+    assert r.status_code == 200, r.text
+
+
+def test_unpacking_has_a_time_budget(tmp_path, monkeypatch):
+    """The scan of a packed file also stops at its time budget (here 0 s): 422 naming the problem."""
+    ncompress = pytest.importorskip("ncompress")
+    from backend.services import file_kinds
+
+    f = tmp_path / "rover.21O.Z"
+    f.write_bytes(ncompress.compress(_rinex_obs_head() + b"\n" * 200_000))
+    assert file_kinds.recognise(f).kind == "rinex-obs"
+    monkeypatch.setattr(file_kinds, "SCAN_TIME_BUDGET_S", 0.0)
+    with pytest.raises(file_kinds.UnrecognisedFile, match="took more than 0 s to unpack"):
+        file_kinds.recognise(f)
+
+
+def test_gzip_bombs_are_refused_by_the_upload_check_and_the_core_reader(tmp_path, monkeypatch):
+    import gzip
+
+    from backend.services import file_kinds
+    from georef_core.errors import InputFileError
+    from georef_core.gnss import compressed_files
+
+    f = tmp_path / "rover.21O.gz"
+    f.write_bytes(gzip.compress(_rinex_obs_head() + (b" " * 79 + b"\n") * 100_000, 9))   # 8 MB in ~9 kB
+    with pytest.raises(file_kinds.UnrecognisedFile, match="decompression bomb"):
+        file_kinds.recognise(f)
+    monkeypatch.setattr(compressed_files, "MIN_UNPACK_CAP_BYTES", 1 << 20)
+    with pytest.raises(InputFileError, match="decompression bomb"):
+        compressed_files.read_bytes(f)
+
+
+# ----------------------------------------------------------------------------------------------- chunks written once
+
+
+def test_upload_chunks_are_written_once_and_assemble_byte_identical(world, monkeypatch):
+    """A chunk's bytes are written once, where they arrive (spooled by core/limits.py), then renamed into the
+    local store: before, they were spooled, copied to a second temporary file, then copied into the store.
+    The file joined from its chunks is byte-identical to what was sent."""
+    import random
+
+    from backend.storage.base import blob_key
+    from backend.storage.local import LocalStorage
+
+    p, a = world["p"], world["a"]
+    storage = p.app.state.storage
+    if not isinstance(storage, LocalStorage):
+        pytest.skip("a local store renames; others upload the received file")
+    from backend.core import limits
+
+    copied, taken = [], []
+    real = storage._write_atomic
+    monkeypatch.setattr(storage, "_write_atomic", lambda key, w: (copied.append(key), real(key, w))[1])
+    real_take = limits._Body.take
+    monkeypatch.setattr(limits._Body, "take", lambda self: (lambda got: (taken.append(got), got)[1])(real_take(self)))
+    rng = random.Random(5)
+    data = POINTS + b"".join(b"Q%d,%.3f,%.3f,%.3f,check\n" % (i, 679000 + rng.random() * 900, 3889000 + rng.random() * 900,
+                                                            70 + rng.random() * 20) for i in range(30_000))
+    assert 1100 * 1024 < len(data) < 2 * 1100 * 1024   # a chunk over 1 MiB (spooled to a file as it arrives), a small one
+    r = upload_bytes(a, world["survey"], "points.csv", data, kind="points", chunk=1100 * 1024)
+    assert r.status_code == 200 and r.json()["state"] == "complete", r.text
+    assert not [k for k in copied if k.startswith("uploads/")], copied      # no chunk copied into the store
+    assert [t for t in taken if t is not None], taken     # the spooled chunk's file itself went to the store
+    sha = hashlib.sha256(data).hexdigest()
+    assert r.json()["result"]["files"][0]["sha256"] == sha
+    assert storage.read_bytes(blob_key(sha)) == data
+    assert not list((p.settings.resolved_work_dir() / "tmp").glob("body-*"))   # no spooled body left behind
+
+
+# ----------------------------------------------------------------------------------------------- bad data that ran anyway
+
+
+@pytest.mark.parametrize("name, data, words", [
+    ("points.csv", POINTS.replace(b"679478.0", b"1e308"), ("points.csv", "line 3", "not a place on Earth")),
+    ("points.csv", POINTS.replace(b"80.0", b"-1e9"), ("points.csv", "line 2", "not a place on Earth")),
+    ("events.csv", b"image,trigger_gps_time_s\nDJI_0001.JPG,1400000000.25\nDJI_0002.JPG,nan\n",
+     ("events.csv", "line 3", "not a finite number")),
+    ("events.csv", b"trigger_gps_time_s\n1400000000.25\ninf\n", ("events.csv", "line 3", "not a finite number")),
+])
+def test_absurd_numbers_are_refused_at_upload_naming_the_file(world, name, data, words):
+    """1e308 coordinates gave a "succeeded" run with an empty residual table, NaN/inf trigger times failed
+    later as "at least 3 control points are needed": both are now refused by the upload check (the core's
+    own readers, so the steps refuse them the same way), naming the file and the line."""
+    r = upload_bytes(world["a"], world["survey"], name, data)
+    _problem(r, 422, *words)

@@ -295,3 +295,22 @@ def test_mutated_inputs_fail_with_the_projects_errors(name, seeds, tmp_path):
                     + "\n".join(f"  {w}: {e}\n    input starts {d!r}" for w, e, d in kinds.values()))
     assert not slow, f"inputs over {MAX_S} s: {[(w, t) for w, t, _ in slow]}"
     assert total < 30, f"{2 * CASES} inputs took {total:.1f} s"
+
+
+def test_the_issues_36_byte_ubx_gives_the_clis_error_not_a_traceback(tmp_path, capsys):
+    """Sync bytes and no valid frame (find_ubx_frames raised IndexError; the CLI printed a traceback)."""
+    from georef_core.cli.main import main
+    from georef_core.errors import InputFileError
+    from georef_core.gnss.ubx import find_ubx_frames, read_ubx
+
+    data = b"\xb5\x62\x02\x15" + bytes(range(32))
+    assert len(data) == 36
+    f = tmp_path / "rover.ubx"
+    f.write_bytes(data)
+    find_ubx_frames(np.frombuffer(data, np.uint8))
+    with pytest.raises(InputFileError):
+        read_ubx(f)
+    nav = DATA / "rinex" / "3034265G_head5.21O"
+    rc = main(["gnss", "solve", str(f), str(nav), str(nav), "--out", str(tmp_path / "x.pos")])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(f) in err and "Traceback" not in err, err

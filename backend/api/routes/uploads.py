@@ -58,7 +58,7 @@ async def put_chunk(upload_id: str, ctx: CtxDep, request: Request,
                                  f"body longer than the {limit} bytes announced by Content-Range") as (tmp, received):
         if received == 0 and limit > 0:
             raise Unprocessable("empty body; the chunk's bytes are expected")
-        up = await run_in_threadpool(uploads.store_chunk, ctx, upload_id, start, end, tmp)
+        up = await run_in_threadpool(uploads.store_chunk, ctx, upload_id, start, end, tmp, True)
     return json_response(request, _out(ctx, up))
 
 
