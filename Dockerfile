@@ -24,5 +24,8 @@ USER georef
 VOLUME /data
 EXPOSE 8000
 
-# default: the API (migrations run first; safe to run on every start)
-CMD ["sh", "-c", "python -m backend.db.migrate && exec uvicorn backend.main:app --host 0.0.0.0 --port 8000 --workers ${API_WORKERS:-2} --proxy-headers --forwarded-allow-ips='*'"]
+# default: the API (migrations run first; safe to run on every start). --http: uvicorn's httptools protocol
+# with a deadline (GEOREF_REQUEST_HEADER_TIMEOUT_S, 408) and a size limit (GEOREF_MAX_REQUEST_HEADER_BYTES, 431)
+# on request headers, which plain uvicorn lacks: the API holds against slow clients without nginx too
+# (docs/security.md); --timeout-keep-alive: an idle kept-alive connection is closed after 15 s
+CMD ["sh", "-c", "python -m backend.db.migrate && exec uvicorn backend.main:app --host 0.0.0.0 --port 8000 --workers ${API_WORKERS:-2} --proxy-headers --forwarded-allow-ips='*' --http backend.core.http_protocol:SettingsHttpProtocol --timeout-keep-alive 15"]
