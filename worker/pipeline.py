@@ -25,6 +25,8 @@ def _context(run: dict) -> dict:
     stockpiles, design surface (the file fetched into the run folder by tasks.materialise)."""
     ctx = {"crs": run["site"]["crs"], "vertical_datum": run["site"].get("vertical_datum"),
            "stockpiles": run.get("stockpiles") or []}
+    if run["site"].get("calibration"):   # the site's calibration (the datum step: unless the survey gives its own)
+        ctx["site_calibration"] = run["site"]["calibration"]
     design = run.get("design")
     if design and design.get("path"):
         ctx["design"] = {"path": design["path"], "polygon": design.get("area"), "name": design.get("name"),

@@ -88,3 +88,20 @@ class SiteDesign(TimestampMixin, VersionMixin, Base):
     def id(self) -> str:
         """The ETag's stem (core/etag.version_etag): not the site's own."""
         return "d" + self.site_id
+
+
+class SiteCalibration(TimestampMixin, VersionMixin, Base):
+    """The site's calibration (localisation: horizontal similarity + inclined plane, the JSON document of
+    georef_core.datums.site_calibration), applied by the datum step of every run of the site unless the
+    survey or the run gives its own (services/calibrations.py, docs/datums.md)."""
+
+    __tablename__ = "site_calibrations"
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), primary_key=True)
+    document: Mapped[dict] = mapped_column(JSON)                     # SiteCalibration.to_dict()
+    source_name: Mapped[str] = mapped_column(String(255), default="")   # the file or "pairs" it was set from
+    set_by: Mapped[str | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), default=None)
+
+    @property
+    def id(self) -> str:
+        """The ETag's stem (core/etag.version_etag): not the site's own."""
+        return "c" + self.site_id

@@ -55,4 +55,12 @@ class DesignChange(BaseModel):
     remaining_fill_m3: float | None = Field(default=None, description="fill still to place (this survey's fill)")
     done_share: dict[str, float | None] = Field(default_factory=dict, description="cut_m3, fill_m3: share of the "
                                                 "first compared survey's cut (fill) done by this survey")
+    method: str = Field(default="totals", description="surfaces: the two surveys' differences to the design compared "
+                        "cell by cell inside the design area (cut_moved_m3: where the ground went down, fill_placed_m3: "
+                        "where it went up); totals: from the two results' cut/fill totals (a difference file missing)")
+    cut_below_design_m3: float | None = Field(default=None, description="of cut_moved_m3, what lay below the design "
+                                              "(over-excavation); surfaces only")
+    fill_above_design_m3: float | None = Field(default=None, description="of fill_placed_m3, what lies above the "
+                                               "design; surfaces only")
+    area_m2: float | None = Field(default=None, description="area compared in both surveys (surfaces only)")
     notes: list[str] = Field(default_factory=list)

@@ -266,6 +266,87 @@ def add_changes(entries: list[dict]) -> None:
         e["since_previous"] = change_between(entries[i - 1], e, entries[0]) if i else None
 
 
+_SURFACE_CHANGES: dict = {}    # (earlier and later difference and cut_fill checksums, area) -> surface_change result
+_SURFACE_CHANGES_MAX = 256
+
+
+def _design_files(ctx: Ctx, run_id: str) -> dict[str, str]:
+    from ..models import RunOutput
+
+    rows = ctx.db.execute(select(RunOutput.path, RunOutput.sha256).where(
+        RunOutput.run_id == run_id, RunOutput.path.in_(("design/difference.tif", "design/cut_fill.json")))).all()
+    return {path.rsplit("/", 1)[1]: sha for path, sha in rows}
+
+
+def surface_change_between(ctx: Ctx, prev: dict, cur: dict, area: dict) -> dict:
+    """``cur`` against ``prev`` surface against surface (georef_core.design.surface_change): the two runs' design
+    difference rasters compared cell by cell inside the design area, with each survey's stated accuracy (its
+    cut_fill.json). Cached in this process by the files' checksums and the area. Raises ValueError (why) when a
+    run lacks the files."""
+    import json
+
+    from georef_core.design.surface_change import SurveyAccuracy, surface_change
+    from georef_core.errors import InputFileError, ProcessingError
+
+    from ..storage import blob_key
+    from .runs import canonical_json
+
+    files = {}
+    for which, e in (("earlier", prev), ("later", cur)):
+        f = _design_files(ctx, e["run_id"])
+        if set(f) != {"difference.tif", "cut_fill.json"}:
+            raise ValueError(f"run {e['run_number']} of {e['survey_name']!r} kept no design difference raster")
+        files[which] = f
+    key = (files["earlier"]["difference.tif"], files["earlier"]["cut_fill.json"], files["later"]["difference.tif"],
+           files["later"]["cut_fill.json"], hashlib.sha256(canonical_json(area).encode()).hexdigest())
+    hit = _SURFACE_CHANGES.get(key)
+    if hit is not None:
+        return hit
+    with tempfile.TemporaryDirectory(dir=_tmp_dir(ctx)) as tmp:
+        acc, diff = {}, {}
+        for which in ("earlier", "later"):
+            f = files[which]
+            e = prev if which == "earlier" else cur
+            where = f"run {e['run_number']} of {e['survey_name']!r}: design/cut_fill.json"
+            try:
+                doc = json.loads(ctx.storage.read_bytes(blob_key(f["cut_fill.json"])))
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"{where}: unreadable ({exc})") from None
+            try:
+                acc[which] = SurveyAccuracy.from_cut_fill(doc, where)
+            except ProcessingError as exc:
+                raise ValueError(str(exc)) from None
+            diff[which] = Path(tmp) / f"{which}.tif"
+            ctx.storage.fetch(blob_key(f["difference.tif"]), diff[which], link_ok=True)
+        try:
+            out = surface_change(diff["earlier"], diff["later"], area, acc["earlier"], acc["later"])
+        except (InputFileError, ProcessingError) as exc:
+            raise ValueError(str(exc)) from None
+    if len(_SURFACE_CHANGES) >= _SURFACE_CHANGES_MAX:
+        _SURFACE_CHANGES.pop(next(iter(_SURFACE_CHANGES)))
+    _SURFACE_CHANGES[key] = out
+    return out
+
+
+def add_surface_changes(ctx: Ctx, entries: list[dict], area: dict | None) -> None:
+    """Each ``since_previous`` (add_changes: from the totals) replaced by the surface-against-surface change where
+    both runs kept their difference rasters; otherwise it stays the totals' with a note saying why."""
+    for i in range(1, len(entries)):
+        c = entries[i].get("since_previous")
+        if c is None or not area:
+            continue
+        try:
+            sc = surface_change_between(ctx, entries[i - 1], entries[i], area)
+        except ValueError as exc:
+            c["notes"].append(f"computed from the two results' cut/fill totals, not surface against surface: {exc}")
+            continue
+        c.update(method="surfaces", cut_moved_m3=sc["cut_moved_m3"], fill_placed_m3=sc["fill_placed_m3"],
+                 net_change_m3=sc["net_change_m3"], sigma_m3=dict(sc["sigma_m3"]),
+                 cut_below_design_m3=sc["cut_below_design_m3"], fill_above_design_m3=sc["fill_above_design_m3"],
+                 area_m2=sc["area_m2"])
+        c["notes"].extend(sc["notes"])
+
+
 def design_progress(ctx: Ctx, site_id: str) -> dict:
     """The site's design against every survey's latest successful run that compared with it (this file,
     surface and area), oldest flight first: cut, fill, net with their 1-sigma, on-grade share. Surveys
@@ -308,10 +389,12 @@ def design_progress(ctx: Ctx, site_id: str) -> dict:
     entries.sort(key=order)
     missing.sort(key=order)
     add_changes(entries)
+    add_surface_changes(ctx, entries, d.area)
     return {"design": {"filename": d.filename, "format": d.format, "sha256": d.sha256, "key": key,
                        "surface_name": d.surface_name, "area_m2": _area_m2(d.area), "tolerance_m": d.tolerance_m},
             "conventions": "cut_m3: surveyed above design (to remove); fill_m3: below design (to place); net_m3 = "
                            "cut - fill; sigma_m3: 1 sigma; on_grade_share: share of the area within +- tolerance_m; "
-                           "since_previous: cut_moved_m3 (cut removed) and fill_placed_m3 since the survey before, "
+                           "since_previous: cut_moved_m3 (ground lowered: removed) and fill_placed_m3 (raised: placed) since the "
+                           "survey before, surface against surface inside the design area (method), "
                            "remaining_cut_m3 / remaining_fill_m3 still to do",
             "surveys": entries, "not_compared": missing}

@@ -111,13 +111,22 @@ def run_context(db: Database, run_id: str) -> dict:
                          # the report's cover and verdict
                          "organisation": org.name if org is not None else None,
                          "tolerance_horizontal_m": site.tolerance_horizontal_m,
-                         "tolerance_vertical_m": site.tolerance_vertical_m},
+                         "tolerance_vertical_m": site.tolerance_vertical_m,
+                         # the site's calibration: the datum step applies it unless the survey or run gives its own
+                         "calibration": _calibration_context(s, run.site_id)},
                 "survey": {"name": survey.name, "flown_at": survey.flown_at.isoformat() if survey.flown_at else None,
                            "flown_at_source": survey.flown_at_source},
                 "stockpiles": [{"id": p.id, "name": p.name, "outline": p.outline, "base": p.base} for p in piles],
                 "design": _design_context(s, run.site_id),
                 "step_states": [{"name": st.name, "state": st.state, "error": st.error} for st in steps],
                 "outputs": [{"step": o.step_name, "path": o.path, "sha256": o.sha256, "size": o.size} for o in outputs]}
+
+
+def _calibration_context(s, site_id: str) -> dict | None:
+    """The site's calibration for the datum step (services/calibrations.calibration_context)."""
+    from .calibrations import calibration_context
+
+    return calibration_context(s, site_id)
 
 
 def _design_context(s, site_id: str) -> dict | None:

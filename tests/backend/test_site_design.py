@@ -2,7 +2,9 @@
 the problem), area and tolerance, permissions (viewer reads, editor sets, another organisation sees
 nothing), the worker's design step fed from it (the file fetched into the run folder, reuse while the design
 is unchanged, recomputed when it changes), and the design progress over two surveys against the analytic
-volumes of the scene (tests/design/scenes.py: valley design, cone cut, conical pit fill)."""
+volumes of the scene (tests/design/scenes.py: valley design, cone cut, conical pit fill), the change between the
+surveys surface against surface; and the site's calibration (set, checked, applied by the datum step of surveys
+without their own: the section at the end)."""
 
 from __future__ import annotations
 
@@ -220,6 +222,9 @@ def test_design_step_and_progress_over_two_surveys(world, worker_here, tmp_path)
     assert may["since_previous"] is None and ch["previous_survey_name"] == "May flight" and ch["days"] == 35.0
     assert abs(ch["cut_moved_m3"] - (cut1 - cut2)) < 0.002 * (cut1 - cut2) and abs(ch["fill_placed_m3"]) < 0.001 * fill
     assert abs(ch["remaining_cut_m3"] - cut2) < 0.001 * cut2 and 0 < ch["sigma_m3"]["cut_moved_m3"] < 20
+    # surface against surface (the two runs' difference rasters, cell by cell), not from the two totals
+    assert ch["method"] == "surfaces" and ch["cut_below_design_m3"] < 0.01 and ch["notes"] == [], ch
+    assert abs(ch["area_m2"] - scenes.area_m2()) < 0.01 * scenes.area_m2()
 
     # an identical run reuses the result; a new tolerance computes it again (and keeps the design key)
     again = _design_run(world, s2, later["dsm"])
@@ -248,3 +253,158 @@ def test_design_without_area_is_skipped_not_failed(tmp_path):
                                                                            "polygon": None, "tolerance_m": 0.05}})
     assert doc["skipped"] is True and "no area" in doc["reason"]
     assert (tmp_path / "out" / "design" / "cut_fill.json").exists()
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The site's calibration (services/calibrations.py): set from a calibration document or control pairs (solved in the
+# site CRS and datum), checked at once (422 naming the problem), permissions (viewer reads, admin sets, another
+# organisation sees nothing); the worker's datum step of a survey without a calibration of its own applies the
+# site's (its summary says which and from where), a survey with its own file keeps it, and a new site calibration
+# makes the step compute again. The simulated site with a known local grid of tests/datums/test_calibration_step.py.
+
+from georef_core.datums.site_calibration import ControlPair, solve_calibration  # noqa: E402
+from georef_core.dense.cog_writer import HEIGHT_TAGS, write_cog  # noqa: E402
+from rasterio.transform import from_origin  # noqa: E402
+from tests.datums.test_calibration_step import CORNERS, _dsm_height, _truth  # noqa: E402
+from tests.datums.test_calibration_step import E0 as CAL_E0, N0 as CAL_N0  # noqa: E402
+
+CAL_CRS = "EPSG:32631"
+
+
+def _pairs(dh_m: float = 0.0) -> list[tuple]:
+    out = []
+    for name, x, y in CORNERS:
+        E, N = CAL_E0 + x, CAL_N0 + y
+        h = float(_dsm_height(E, N))
+        e, n, H = _truth(E, N, h)
+        out.append((name, round(E, 4), round(N, 4), round(h, 4), round(float(e), 4), round(float(n), 4),
+                    round(float(H) + dh_m, 4)))
+    return out
+
+
+def _csv(dh_m: float = 0.0) -> str:
+    return "name,easting_m,northing_m,height_m,local_e_m,local_n_m,local_h_m\n" + "".join(
+        ",".join(str(v) for v in r) + "\n" for r in _pairs(dh_m))
+
+
+@pytest.fixture(scope="module")
+def cal_world(world, tmp_path_factory):
+    """A second site of the same owner, in the calibration scene's CRS, the viewer a member; a plane DSM."""
+    owner = world["owner"]
+    r = owner.post("/api/v1/sites", json={"name": "Local grid works", "crs": CAL_CRS})
+    assert r.status_code == 201, r.text
+    site = r.json()["id"]
+    with world["p"].db().session(read_only=True) as s:
+        from backend.models import User
+
+        viewer_id = s.scalar(select(User.id).where(User.email == "watcher@example.com"))
+    assert owner.c.put(f"/api/v1/sites/{site}/members/{viewer_id}", json={"role": "viewer"},
+                       headers={"X-CSRF-Token": owner.csrf}).status_code == 200
+    d = tmp_path_factory.mktemp("cal-dsm")
+    yy, xx = np.mgrid[0:50, 0:50]
+    z = _dsm_height(CAL_E0 + (xx + 0.5) * 2.0, CAL_N0 + 100 - (yy + 0.5) * 2.0).astype(np.float32)
+    dsm = write_cog(d / "dsm.tif", z, from_origin(CAL_E0, CAL_N0 + 100, 2.0, 2.0), 32631, nodata=-9999.0,
+                    tags=HEIGHT_TAGS)
+    return {**world, "site": site, "dsm": dsm}
+
+
+def test_site_calibration_set_checked_and_permissions(cal_world):
+    world = cal_world
+    owner, viewer, stranger, site = world["owner"], world["viewer"], world["stranger"], world["site"]
+    url = f"/api/v1/sites/{site}/calibration"
+    assert viewer.get(url).status_code == 404          # none yet
+    assert viewer.put(url, json={"pairs_csv": _csv()}).status_code == 403
+    assert stranger.put(url, json={"pairs_csv": _csv()}).status_code == 404
+    # control pairs solved here in the site CRS and datum (ellipsoidal)
+    r = owner.put(url, json={"pairs_csv": _csv(), "source_name": "site pairs.csv"})
+    assert r.status_code == 200, r.text
+    c = r.json()
+    assert c["crs"] == CAL_CRS and c["height_datum"] == "ellipsoidal" and c["source_name"] == "site pairs.csv"
+    assert abs(c["summary"]["horizontal"]["scale_ppm"] - 25.0) < 2.0 and c["version"] == 1
+    assert [x["name"] for x in c["summary"]["residuals"]] == [n for n, _, _ in CORNERS]
+    assert c["summary"]["statistics"]["rms_vertical_m"] < 1e-3
+    got = viewer.get(url)
+    assert got.status_code == 200 and got.json()["document"] == c["document"] and stranger.get(url).status_code == 404
+    # the same as a document (what georef datum calibrate writes): the same parameters
+    cal = solve_calibration([ControlPair(n, (E, N, h), (e, nn, H), "hv") for n, E, N, h, e, nn, H in _pairs()],
+                            crs=CAL_CRS, height_datum="ellipsoidal", name="from the office")
+    r = owner.put(url, json={"document": cal.to_dict()}, headers={"If-Match": got.headers["ETag"]})
+    assert r.status_code == 200 and r.json()["name"] == "from the office" and r.json()["version"] == 2
+    assert math.isclose(r.json()["summary"]["horizontal"]["scale"], c["summary"]["horizontal"]["scale"], rel_tol=1e-12)
+    # refused with the reason, nothing changed
+    bad = owner.put(url, json={"pairs_csv": _csv().replace("K3,", "K3,north,", 1)})
+    assert bad.status_code == 422 and "line 4" in bad.json()["detail"], bad.text
+    other = solve_calibration([ControlPair(n, (E, N, h), (e, nn, H), "hv") for n, E, N, h, e, nn, H in _pairs()],
+                              crs="EPSG:32632", height_datum="ellipsoidal")
+    bad = owner.put(url, json={"document": other.to_dict()})
+    assert bad.status_code == 422 and "EPSG:32632" in bad.json()["detail"] and "site CRS" in bad.json()["detail"]
+    bad = owner.put(url, json={"document": {"format": "georef-site-calibration", "version": 2}})
+    assert bad.status_code == 422 and "version 2" in bad.json()["detail"]
+    assert owner.put(url, json={}).status_code == 422
+    assert viewer.get(url).json()["version"] == 2
+    assert viewer.delete(url).status_code == 403
+
+
+def _cal_survey(world, name: str, own_pairs: str | None = None) -> str:
+    owner = world["owner"]
+    r = owner.post(f"/api/v1/sites/{world['site']}/surveys",
+                   json={"name": name, "flown_at": datetime(2026, 5, 4, 9, tzinfo=timezone.utc).isoformat()})
+    assert r.status_code == 201, r.text
+    sid = r.json()["id"]
+    assert upload_bytes(owner, sid, "points.csv", POINTS_CSV).status_code == 200
+    if own_pairs:
+        assert upload_bytes(owner, sid, "my pairs.csv", own_pairs.encode()).status_code == 200
+    return sid
+
+
+def _datum_run(world, survey_id: str) -> str:
+    from backend.models import RunOutput, RunStep
+    from backend.storage import storage_for
+
+    p = world["p"]
+    r = world["owner"].post(f"/api/v1/surveys/{survey_id}/runs", json={"steps": ["datum"]})
+    assert r.status_code == 201, r.text
+    run_id = r.json()["id"]
+    sha, size = storage_for(p.settings).put_blob(world["dsm"])
+    with p.db().session() as s:
+        s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.name != "datum").values(state="succeeded"))
+        s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.name == "datum").values(state="queued"))
+        s.add(RunOutput(run_id=run_id, step_name="dense", path="dense/dsm.tif", sha256=sha, size=size))
+    return run_id
+
+
+def _datum_summary(world, run_id: str) -> dict:
+    steps = {s["name"]: s for s in world["owner"].get(f"/api/v1/runs/{run_id}").json()["step_details"]}
+    assert steps["datum"]["state"] == "succeeded", steps["datum"]
+    return steps["datum"]["summary"]
+
+
+def test_datum_step_applies_the_sites_calibration_unless_the_survey_has_its_own(cal_world, worker_here):
+    world = cal_world
+    owner, site = world["owner"], world["site"]
+    url = f"/api/v1/sites/{site}/calibration"
+    if owner.get(url).status_code == 404:    # run alone
+        assert owner.put(url, json={"pairs_csv": _csv()}).status_code == 200
+    site_version = owner.get(url).json()["version"]
+    plain = _cal_survey(world, "May flight")
+    run = _datum_run(world, plain)
+    assert worker_here.execute_step(run, "datum") == "done"
+    cal = _datum_summary(world, run)["calibration"]
+    assert cal["origin"] == "site" and f"version {site_version}" in cal["source"], cal
+    assert abs(cal["horizontal"]["scale_ppm"] - 25.0) < 2.0 and "site_calibration_not_used" not in cal
+    # a survey with its own pairs (its local heights 3 cm higher) keeps them; the summary says the site's was not used
+    own = _cal_survey(world, "June flight", own_pairs=_csv(dh_m=0.03))
+    run2 = _datum_run(world, own)
+    assert worker_here.execute_step(run2, "datum") == "done"
+    cal2 = _datum_summary(world, run2)["calibration"]
+    assert cal2["origin"] == "survey file" and cal2["source"] == "calibration/pairs.csv"
+    assert abs(cal2["vertical"]["constant_m"] - cal["vertical"]["constant_m"] - 0.03) < 1e-3
+    assert f"version {site_version}" in cal2["site_calibration_not_used"]
+    # the same site calibration: reused; a new one: the step computes again with it
+    assert worker_here.execute_step(_datum_run(world, plain), "datum") == "reused"
+    assert owner.put(url, json={"pairs_csv": _csv(dh_m=-0.05), "source_name": "resurvey.csv"}).status_code == 200
+    run3 = _datum_run(world, plain)
+    assert worker_here.execute_step(run3, "datum") == "done"
+    cal3 = _datum_summary(world, run3)["calibration"]
+    assert cal3["origin"] == "site" and "resurvey.csv" in cal3["source"]
+    assert abs(cal3["vertical"]["constant_m"] - cal["vertical"]["constant_m"] + 0.05) < 1e-3

@@ -67,3 +67,43 @@ export function calibrationParameterLines(c: CalibrationSummary): string[] {
   lines.push(`residuals RMS horizontal ${mm(st.rms_horizontal_m)}, vertical ${mm(st.rms_vertical_m)}; largest ${mm(st.max_horizontal_m)} / ${mm(st.max_vertical_m)}`);
   return lines;
 }
+
+/** The site's stored calibration (GET /sites/{id}/calibration: backend/schemas/calibrations.SiteCalibrationOut). */
+export interface SiteCalibrationOut {
+  site_id: string;
+  name: string;
+  source_name: string;
+  crs: string;
+  height_datum: string;
+  summary: CalibrationSummary;
+  document: Record<string, unknown>;
+  set_by: string | null;
+  created_at: string;
+  updated_at: string;
+  version: number;
+}
+
+/** The body of PUT /sites/{id}/calibration from a file the user picked: a calibration JSON document (what
+ * `georef datum calibrate` writes) or a CSV of control pairs (solved by the server in the site CRS and datum).
+ * Read by content, as the server and the survey upload do. Throws with the reason for anything else. */
+export function siteCalibrationBody(filename: string, text: string): { document?: Record<string, unknown>; pairs_csv?: string; source_name: string } {
+  const t = text.replace(/^\uFEFF/, "").trimStart();
+  if (!t) throw new Error("the file is empty");
+  if (t.startsWith("{")) {
+    let doc: unknown;
+    try {
+      doc = JSON.parse(t);
+    } catch (e) {
+      throw new Error(`not valid JSON (${(e as Error).message})`);
+    }
+    if (!doc || typeof doc !== "object" || (doc as any).format !== "georef-site-calibration") {
+      throw new Error("a JSON file that is not a site calibration (its format is not georef-site-calibration)");
+    }
+    return { document: doc as Record<string, unknown>, source_name: filename };
+  }
+  const head = t.split(/\r?\n/, 1)[0].toLowerCase().split(/[,;\t]/).map((c) => c.trim());
+  if (!head.some((c) => c.startsWith("local_"))) {
+    throw new Error("neither a calibration JSON nor a CSV of control pairs (name, easting_m, northing_m, height_m, local_e_m, local_n_m, local_h_m)");
+  }
+  return { pairs_csv: t, source_name: filename };
+}

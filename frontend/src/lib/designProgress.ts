@@ -67,6 +67,11 @@ export interface DesignChange {
   remaining_cut_m3: number | null;
   remaining_fill_m3: number | null;
   done_share: { cut_m3?: number | null; fill_m3?: number | null };
+  /** "surfaces": the two surveys compared cell by cell inside the design area; "totals": from their cut/fill totals */
+  method?: "surfaces" | "totals";
+  cut_below_design_m3?: number | null;
+  fill_above_design_m3?: number | null;
+  area_m2?: number | null;
   notes: string[];
 }
 

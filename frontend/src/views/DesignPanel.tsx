@@ -236,7 +236,7 @@ function ChangeTable({ p }: { p: DesignProgress }) {
   return (
     <div class="table-wrap">
       <table class="data compact" data-testid="design-change">
-        <caption>Since the previous survey (m³, ± 1σ) and what remains to the design</caption>
+        <caption>Since the previous survey (m³, ± 1σ; surface against surface inside the design area) and what remains to the design</caption>
         <thead>
           <tr>
             <th scope="col">Survey</th>
@@ -257,8 +257,8 @@ function ChangeTable({ p }: { p: DesignProgress }) {
                 <th scope="row">{e.survey_name}</th>
                 <td>{c.previous_survey_name}{c.days !== null ? <span class="small muted"> ({Math.round(c.days)} d)</span> : null}
                   {c.notes.length ? <span class="block small warn-text">{c.notes.join("; ")}</span> : null}</td>
-                <td class="num">{formatChange(c.cut_moved_m3, c.sigma_m3.cut_moved_m3)}</td>
-                <td class="num">{formatChange(c.fill_placed_m3, c.sigma_m3.fill_placed_m3)}</td>
+                <td class="num" title={c.cut_below_design_m3 ? `of which below the design (over-excavation): ${formatVolumeNumber(c.cut_below_design_m3)}` : undefined}>{formatChange(c.cut_moved_m3, c.sigma_m3.cut_moved_m3)}</td>
+                <td class="num" title={c.fill_above_design_m3 ? `of which above the design: ${formatVolumeNumber(c.fill_above_design_m3)}` : undefined}>{formatChange(c.fill_placed_m3, c.sigma_m3.fill_placed_m3)}</td>
                 <td class="num">{formatChange(c.net_change_m3, c.sigma_m3.net_change_m3)}</td>
                 <td class="num">{formatVolumeNumber(c.remaining_cut_m3)}</td>
                 <td class="num">{formatVolumeNumber(c.remaining_fill_m3)}</td>

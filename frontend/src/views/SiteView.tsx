@@ -12,6 +12,7 @@ import { formatLength } from "../lib/residuals";
 import { href, navigate } from "../router";
 import { DesignPanel } from "./DesignPanel";
 import { InventoryPanel } from "./InventoryPanel";
+import { SiteCalibrationPanel } from "./SiteCalibrationPanel";
 
 const PALETTE = ["#1f6feb", "#d9480f", "#2b8a3e", "#ae3ec9", "#e67700", "#0b7285", "#c2255c", "#5c940d"];
 
@@ -141,6 +142,9 @@ export function SiteView({ siteId, me }: { siteId: string; me: Me }) {
 
       <h2>Design progress</h2>
       <DesignPanel siteId={siteId} canEdit={canEdit} />
+
+      <h2>Site calibration</h2>
+      <SiteCalibrationPanel siteId={siteId} canAdmin={role === "admin" || me.user.is_org_admin} />
     </section>
   );
 }
