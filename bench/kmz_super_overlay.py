@@ -1,10 +1,15 @@
-"""Benchmark: the orthophoto KMZ of a large orthophoto, as one reduced image and as a super-overlay
+"""Benchmark: the orthophoto KMZ of a large orthophoto, as one reduced image, as the earlier super-overlay
+capped at 1024 finest tiles, and as the regionated pyramid down to the zoom that resolves it (no cap)
 (georef_core/deliverables/kmz_writer.py). A synthetic orthophoto (textured ground with roads and piles,
 a no-data margin, 3 cm pixels, EPSG:32633) is written as a cloud-optimised GeoTIFF with overviews, as the
 dense step writes its orthophoto; prints, for each form, the time, the KMZ size, the overlay's finest ground
-pixel and the tile counts per level, and the ratio of the finest pixels (one image / super-overlay).
+pixel, the tile counts per level and the Python heap's peak while writing (tracemalloc: numpy arrays and the
+encoded tiles; the earlier writer also held every encoded tile until the end, printed as "held"), and the
+ratios of the pyramid to the capped overlay.
 
     python bench/kmz_super_overlay.py                 # 8000 x 8000 px (240 m at 3 cm)
+    python bench/kmz_super_overlay.py --size 20000 --no-one-image
+    python bench/kmz_super_overlay.py --size 20000 --plan  # the tile counts per level only
     python bench/kmz_super_overlay.py --size 4000 --max-tiles 256
 """
 
@@ -14,6 +19,8 @@ import argparse
 import sys
 import tempfile
 import time
+import tracemalloc
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -56,8 +63,32 @@ def write_ortho(path: Path, size: int) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=8000, help="orthophoto width and height, px")
-    ap.add_argument("--max-tiles", type=int, default=1024, help="tiles at the finest level, at most")
+    ap.add_argument("--max-tiles", type=int, default=1024, help="the earlier cap: tiles at the finest level")
+    ap.add_argument("--no-one-image", action="store_true", help="skip the one-image KMZ (slow on large rasters)")
+    ap.add_argument("--plan", action="store_true", help="only count the tiles per level of both forms (nothing "
+                    "drawn): the pyramid's tile count and levels for a size too slow to run here")
     a = ap.parse_args()
+    if a.plan:
+        from pyproj import Transformer
+
+        from georef_core.deliverables.kmz_writer import overlay_levels, tile_range
+        from georef_core.tiles.mercator import ground_pixel_m, zoom_for_pixel
+
+        side = a.size * CELL_M
+        lon, lat = Transformer.from_crs(EPSG, 4326, always_xy=True).transform([E0, E0 + side], [N0 - side, N0])
+        box = (lon[0], lat[0], lon[1], lat[1])
+        zf = zoom_for_pixel(CELL_M, (lat[0] + lat[1]) / 2)
+
+        def count(z):
+            x0, y0, x1, y1 = tile_range(box, z)
+            return (x1 - x0 + 1) * (y1 - y0 + 1)
+
+        for label, cap in (("capped", a.max_tiles), ("pyramid", None)):
+            lv = overlay_levels(box, zf, cap)
+            per = {z: count(z) for z in lv}
+            print(f"{label:8s}: zoom levels {lv[0]}-{lv[-1]}, at most {sum(per.values())} tiles {per}, finest pixel "
+                  f"{ground_pixel_m(lv[-1], lat[0]) * 100:.1f} cm")
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         ortho = tmp / "ortho.tif"
@@ -65,18 +96,36 @@ def main() -> int:
         write_ortho(ortho, a.size)
         print(f"orthophoto {a.size} x {a.size} px, {CELL_M * 100:.0f} cm pixels ({a.size * CELL_M:.0f} m): written in "
               f"{time.perf_counter() - t:.1f} s")
-        t = time.perf_counter()
-        one = write_kmz(ortho, tmp / "one.kmz", tile_threshold_px=10 ** 9)
-        t_one = time.perf_counter() - t
-        print(f"one image  : {t_one:6.1f} s, {(tmp / 'one.kmz').stat().st_size / 1e6:7.1f} MB, "
-              f"{one['width_px']} x {one['height_px']} px, {one['pixel_m'] * 100:.1f} cm pixels")
-        t = time.perf_counter()
-        sup = write_kmz(ortho, tmp / "tiled.kmz", max_tiles=a.max_tiles)
-        t_sup = time.perf_counter() - t
-        print(f"super-overlay: {t_sup:6.1f} s, {(tmp / 'tiled.kmz').stat().st_size / 1e6:7.1f} MB, {sup['tiles']} tiles "
-              f"over zoom levels {sup['levels'][0]}-{sup['levels'][-1]} ({sup['tiles_per_level']}), finest pixel "
-              f"{sup['pixel_m'] * 100:.1f} cm ({sup['tiles'] / t_sup:.0f} tiles/s)")
-        print(f"ratio of the finest ground pixels, one image / super-overlay: {one['pixel_m'] / sup['pixel_m']:.2f}")
+
+        def timed(out, **kw):
+            tracemalloc.start()
+            t = time.perf_counter()
+            try:
+                r = write_kmz(ortho, out, **kw)
+                _, peak = tracemalloc.get_traced_memory()
+            finally:
+                tracemalloc.stop()
+            return r, time.perf_counter() - t, peak / 1e6, out.stat().st_size / 1e6
+
+        if not a.no_one_image:
+            one, t_one, _, mb = timed(tmp / "one.kmz", tile_threshold_px=10 ** 9)
+            print(f"one image  : {t_one:6.1f} s, {mb:7.1f} MB, {one['width_px']} x {one['height_px']} px, "
+                  f"{one['pixel_m'] * 100:.1f} cm pixels")
+        res = {}
+        for label, cap in (("capped", a.max_tiles), ("pyramid", None)):
+            r, dt, peak, mb = timed(tmp / f"{label}.kmz", max_tiles=cap, tile_threshold_px=1024)
+            with zipfile.ZipFile(tmp / f"{label}.kmz") as z:
+                held = sum(i.file_size for i in z.infolist() if i.filename.endswith((".jpg", ".png"))) / 1e6
+            res[label] = (r, dt, mb)
+            print(f"{label:8s} super-overlay: {dt:6.1f} s, {mb:7.1f} MB, {r['tiles']} tiles over zoom levels "
+                  f"{r['levels'][0]}-{r['levels'][-1]} ({r['tiles_per_level']}), finest pixel {r['pixel_m'] * 100:.1f} cm "
+                  f"({r['tiles'] / dt:.0f} tiles/s); heap peak {peak:.0f} MB (encoded tiles: {held:.0f} MB, what the "
+                  f"earlier writer held)")
+        (rc, tc, mc), (rp, tp, mp) = res["capped"], res["pyramid"]
+        print(f"ratios pyramid / capped: time {tp / tc:.2f}, size {mp / mc:.2f}, tiles {rp['tiles'] / rc['tiles']:.2f}, "
+              f"finest pixel {rp['pixel_m'] / rc['pixel_m']:.2f}")
+        if not a.no_one_image:
+            print(f"ratio of the finest ground pixels, one image / pyramid: {one['pixel_m'] / rp['pixel_m']:.2f}")
     return 0
 
 

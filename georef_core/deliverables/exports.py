@@ -303,7 +303,7 @@ def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = N
                survey_dir=None, index_every: int = 5, smoothing_m: float | None = None,
                tin_spacing_m: float | None = None, geojson_crs: str = "wgs84", kmz_max_px: int = 4096,
                heights: str = "site", progress=None, kmz_tile_threshold_px: int = 2048,
-               kmz_max_tiles: int = 1024) -> dict:
+               kmz_max_tiles: int | None = 4096) -> dict:
     """Writes the requested ``formats`` (default all of FORMATS) of a run folder to ``out_dir`` (default
     ``run_dir/exports``) and ``exports.json``; returns that manifest: {"written": {format: [files]},
     "skipped": {format or item: why}, "contours": summary, "tin": summary, "crs", "vertical_datum"}."""

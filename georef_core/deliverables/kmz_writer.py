@@ -7,12 +7,15 @@
 * Larger: a super-overlay (KML Regions with levels of detail), which Google Earth loads tile by tile as the
   view comes closer, where one large image would be cut down to the viewer's texture limit. The tiles are
   the web map's (georef_core.tiles: Web Mercator 256 px tiles, each read from the orthophoto's nearest
-  overview), over a few zoom levels: from the finest that resolves the orthophoto (coarser when it would
-  need more than ``max_tiles`` tiles) up to the first level where one tile covers it (a single root, as
-  GDAL's KML super-overlay reader expects; a site astride a tile edge of every level down to z has a few
-  one- or two-tile levels more, cheap to draw). Every tile is ``tiles/{z}_{x}_{y}.kml`` (a Region, a
-  GroundOverlay of ``tiles/{z}_{x}_{y}.jpg`` or ``.png`` and a NetworkLink with its Region to each of its 4
-  children that holds data or leads to some); doc.kml links the root tile.
+  overview), over a regionated pyramid of zoom levels: from the finest that resolves the orthophoto (no cap
+  on its tile count; ``max_tiles`` may set one, making it coarser) up to the first level where one tile
+  covers it (a single root, as GDAL's KML super-overlay reader expects; a site astride a tile edge of every
+  level down to z has a few one- or two-tile levels more, cheap to draw). Every tile is
+  ``tiles/{z}_{x}_{y}.kml`` (a Region with its Lod, a GroundOverlay of ``tiles/{z}_{x}_{y}.jpg`` or ``.png``
+  and a NetworkLink with its Region to each of its 4 children that holds data or leads to some), so a viewer
+  loads only the tiles in view at the detail the view needs; doc.kml links the root tile. Memory does not grow
+  with the orthophoto: each tile is read by a window of the nearest overview, encoded and written to the zip
+  at once (only the tile keys are kept).
   Tiles without no-data are JPEG (quality 90), tiles with some PNG (no-data transparent), tiles all no-data
   are left out. A Mercator tile placed by a LatLonBox (linear in latitude) is off by at most
   R x dphi^2 x tan(lat) / 8 inside it (dphi its latitude span): under 3 cm for a 1.2 km tile at 45 deg, a
@@ -35,7 +38,7 @@ KML_NS = "http://www.opengis.net/kml/2.2"
 
 
 def write_kmz(ortho_path, out_path, max_px: int = 4096, name: str = "Orthophoto", tile_threshold_px: int = 2048,
-              max_tiles: int = 1024) -> dict:
+              max_tiles: int | None = None) -> dict:
     """Writes ``out_path`` (.kmz) from the orthophoto GeoTIFF: one overlay image, or a super-overlay when the
     orthophoto is larger than ``tile_threshold_px`` on its longer side (module description). Returns
     {"tiled", "west", "south", "east", "north", "pixel_m"} and "width_px", "height_px" (one image) or
@@ -145,14 +148,21 @@ def tile_range(lonlat_bounds, z: int) -> tuple[int, int, int, int]:
     return x0, y0, x1, y1
 
 
-def overlay_levels(lonlat_bounds, finest_zoom: int, max_tiles: int) -> list[int]:
-    """The zoom levels of the super-overlay, coarsest first (module description)."""
+def _level_keys(lonlat_bounds, z: int) -> list[tuple[int, int, int]]:
+    """The tiles (z, x, y) of zoom z that the lon/lat box touches, row by row."""
+    x0, y0, x1, y1 = tile_range(lonlat_bounds, z)
+    return [(z, x, y) for y in range(y0, y1 + 1) for x in range(x0, x1 + 1)]
+
+
+def overlay_levels(lonlat_bounds, finest_zoom: int, max_tiles: int | None = None) -> list[int]:
+    """The zoom levels of the super-overlay, coarsest first (module description); ``max_tiles`` None: no cap
+    on the finest level's tile count."""
     def count(z):
         x0, y0, x1, y1 = tile_range(lonlat_bounds, z)
         return (x1 - x0 + 1) * (y1 - y0 + 1)
 
     zf = finest_zoom
-    while zf > 0 and count(zf) > max(1, max_tiles):
+    while max_tiles is not None and zf > 0 and count(zf) > max(1, max_tiles):
         zf -= 1
     zc = zf
     while zc > 0 and count(zc) > TOP_LEVEL_MAX_TILES:
@@ -193,63 +203,75 @@ def _encode_tile(rgba: np.ndarray) -> tuple[bytes, str] | None:
     return buf.getvalue(), "png"
 
 
-def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tiles: int = 1024) -> dict:
+def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tiles: int | None = None) -> dict:
     """The orthophoto as a KMZ super-overlay (module description); returns {"tiled": True, "west", "south",
     "east", "north" (the orthophoto's WGS 84 box), "levels", "tiles", "tiles_per_level", "pixel_m" (ground
-    pixel of the finest level at the centre)}."""
+    pixel of the finest level at the centre)}. ``max_tiles``: None (default) for the zoom that resolves the
+    orthophoto whatever its size; a number makes the finest level coarser until it holds at most that many.
+
+    Memory is bounded whatever the orthophoto's size: each tile is read from the orthophoto by a window
+    (``tiles.render.render_tile_rgba``), encoded and written into the zip at once; only the tile keys and their
+    image type are kept (a few dozen bytes a tile) to write the KML tree at the end."""
     from ..tiles.mercator import ground_pixel_m
     from ..tiles.render import raster_info, render_tile_rgba
 
     src_path = Path(ortho_path)
     info = raster_info(src_path, "rgb")
     levels = overlay_levels(info.lonlat_bounds, info.max_zoom, max_tiles)
-    images: dict[tuple[int, int, int], tuple[bytes, str]] = {}
-    for z in levels:
-        x0, y0, x1, y1 = tile_range(info.lonlat_bounds, z)
-        for x in range(x0, x1 + 1):
-            for y in range(y0, y1 + 1):
-                rgba = render_tile_rgba(src_path, info, z, x, y)[0]
-                enc = _encode_tile(rgba) if rgba is not None else None
-                if enc is not None:
-                    images[(z, x, y)] = enc
-    if not images:
-        raise InputFileError(src_path, "the orthophoto holds no valid pixel (all no-data)")
     west, south, east, north = info.lonlat_bounds
     lat = (south + north) / 2
     pixel_m = ground_pixel_m(levels[-1], lat)
     finest = levels[-1]
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    # every tile with an image and every tile above one (a coarse tile all no-data may still lead to finer
-    # tiles with data at the orthophoto's edge: it is kept, without an overlay)
-    nodes = set(images)
-    for z in range(finest, levels[0], -1):
-        nodes |= {(z - 1, x // 2, y // 2) for (zz, x, y) in list(nodes) if zz == z}
-    top = sorted(k for k in nodes if k[0] == levels[0])
-    desc = escape(f"Georef orthophoto as {len(images)} tiles over zoom levels {levels[0]}-{finest}, "
-                  f"{pixel_m:.3f} m pixels at the finest; source {src_path.name}")
-    doc = (f'<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="{KML_NS}">\n <Document>\n'
-           f"  <name>{escape(name)}</name>\n  <description>{desc}</description>\n"
-           + "".join("  " + _link(k, 0, "tiles/") + "\n" for k in top)
-           + " </Document>\n</kml>\n")
-    with zipfile.ZipFile(out_path, "w", zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("doc.kml", doc)              # first entry: what KMZ readers open
-        for z, x, y in sorted(nodes):
-            box = tile_lonlat_box(z, x, y)
-            kids = [(z + 1, 2 * x + i, 2 * y + j) for j in (0, 1) for i in (0, 1)]
-            links = "".join(_link(k, MIN_LOD_PIXELS) for k in kids if k in nodes)
-            overlay = ""
-            if (z, x, y) in images:
-                data, ext = images[(z, x, y)]
-                overlay = (f"<GroundOverlay><drawOrder>{z}</drawOrder><Icon><href>{z}_{x}_{y}.{ext}</href></Icon>"
-                           f"{_box('LatLonBox', box)}</GroundOverlay>")
-                # JPEG and PNG are compressed already
-                zf.writestr(zipfile.ZipInfo(f"tiles/{z}_{x}_{y}.{ext}", date_time=(1980, 1, 1, 0, 0, 0)), data,
-                            compress_type=zipfile.ZIP_STORED)
-            kml = (f'<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="{KML_NS}"><Document>'
-                   f"<name>{z}/{x}/{y}</name>{_region(box, 0 if z == levels[0] else MIN_LOD_PIXELS)}"
-                   f"{overlay}{links}</Document></kml>\n")
-            zf.writestr(f"tiles/{z}_{x}_{y}.kml", kml)
+    part = out_path.with_name(out_path.name + ".part")
+    images: dict[tuple[int, int, int], str] = {}      # tile -> image extension: what the KML tree needs
+    try:
+        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+            # doc.kml first (what KMZ readers open): it links the root, the one tile of the coarsest level
+            top_keys = _level_keys(info.lonlat_bounds, levels[0])
+            desc_head = f"Georef orthophoto over zoom levels {levels[0]}-{finest}, {pixel_m:.3f} m pixels at the finest"
+            doc = (f'<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="{KML_NS}">\n <Document>\n'
+                   f"  <name>{escape(name)}</name>\n"
+                   f"  <description>{escape(desc_head + '; source ' + src_path.name)}</description>\n"
+                   + "".join("  " + _link(k, 0, "tiles/") + "\n" for k in top_keys)
+                   + " </Document>\n</kml>\n")
+            zf.writestr("doc.kml", doc)
+            for z in levels:
+                for key in _level_keys(info.lonlat_bounds, z):
+                    rgba = render_tile_rgba(src_path, info, *key)[0]
+                    enc = _encode_tile(rgba) if rgba is not None else None
+                    if enc is None:
+                        continue
+                    data, ext = enc
+                    images[key] = ext
+                    # JPEG and PNG are compressed already
+                    zf.writestr(zipfile.ZipInfo(f"tiles/{key[0]}_{key[1]}_{key[2]}.{ext}",
+                                                date_time=(1980, 1, 1, 0, 0, 0)), data,
+                                compress_type=zipfile.ZIP_STORED)
+            if not images:
+                raise InputFileError(src_path, "the orthophoto holds no valid pixel (all no-data)")
+            # every tile with an image and every tile above one (a coarse tile all no-data may still lead to
+            # finer tiles with data at the orthophoto's edge: it is kept, without an overlay); the roots always
+            nodes = set(images) | set(top_keys)
+            for z in range(finest, levels[0], -1):
+                nodes |= {(z - 1, x // 2, y // 2) for (zz, x, y) in list(nodes) if zz == z}
+            for z, x, y in sorted(nodes):
+                box = tile_lonlat_box(z, x, y)
+                kids = [(z + 1, 2 * x + i, 2 * y + j) for j in (0, 1) for i in (0, 1)]
+                links = "".join(_link(k, MIN_LOD_PIXELS) for k in kids if k in nodes)
+                overlay = ""
+                if (z, x, y) in images:
+                    overlay = (f"<GroundOverlay><drawOrder>{z}</drawOrder>"
+                               f"<Icon><href>{z}_{x}_{y}.{images[(z, x, y)]}</href></Icon>"
+                               f"{_box('LatLonBox', box)}</GroundOverlay>")
+                kml = (f'<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="{KML_NS}"><Document>'
+                       f"<name>{z}/{x}/{y}</name>{_region(box, 0 if z == levels[0] else MIN_LOD_PIXELS)}"
+                       f"{overlay}{links}</Document></kml>\n")
+                zf.writestr(f"tiles/{z}_{x}_{y}.kml", kml)
+        part.replace(out_path)
+    finally:
+        part.unlink(missing_ok=True)
     per_level = {str(z): sum(1 for k in images if k[0] == z) for z in levels}
     return {"tiled": True, "west": west, "south": south, "east": east, "north": north, "levels": levels,
             "tiles": len(images), "tiles_per_level": per_level, "pixel_m": round(pixel_m, 4)}

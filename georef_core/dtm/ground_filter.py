@@ -13,6 +13,19 @@ Rule (parameters in :class:`GroundFilterOptions`, defaults in brackets):
    by about ``s * cell_m`` per step: slopes up to ``slope`` [1.2 = 50 deg] are never objects, whatever their
    height, so stockpiles (30-45 deg) stay ground; a block with vertical sides vanishes in one step, when the
    disc no longer fits on its top, and drops by its full height (machines, cabins: 2.5-4 m).
+   Two more rules mark object cells that the opening cannot see (vegetation):
+
+   * **stepped cells**: a classification cell whose own DSM cells span more than
+     ``elevation_threshold_m + slope * cell_m * sqrt(2)`` [1.15 m] (more than ground of slope ``slope`` spans
+     across the cell's diagonal) holds a vertical step: foliage over ground seen through a gap in it, whose
+     minimum is the ground, or an object's edge;
+   * **rough cells**: groups (at least 2 x 2) of classification cells whose median DSM roughness (RMS residual
+     of a plane over 3 x 3 DSM cells) exceeds ``ROUGH_FACTOR`` [3] times its median over the site (the DSM's
+     noise on ground) and ``ROUGH_FLOOR_M`` [4 cm]: foliage, matched rough where ground, piles and machines
+     are smooth. Dome-shaped bushes, no steeper than a pile, are caught by this rule only.
+
+   Ground seen through foliage gaps, clamped as a low outlier, joins the object's region (its clamped height
+   must not hold the provisional ground up).
 3. **Provisional ground**: the minimum surface with the object cells (grown by one classification cell)
    replaced by harmonic interpolation from the ground around them, bilinearly resampled to the DSM grid.
 4. **Non-ground DSM cells**: inside the grown object regions, the DSM cells higher than the provisional
@@ -78,6 +91,61 @@ def block_min(values: np.ndarray, f: int) -> np.ndarray:
     return out
 
 
+def block_max(values: np.ndarray, f: int) -> np.ndarray:
+    """Highest finite value of each f x f block (NaN where a block has none)."""
+    return -block_min(-np.asarray(values, np.float64), f)
+
+
+def stepped_blocks(dsm: np.ndarray, zmin: np.ndarray, f: int, limit_m: float) -> np.ndarray:
+    """Classification cells whose own DSM cells span more than ``limit_m`` in height: more than ground of
+    slope ``slope`` spans across a cell's diagonal, plus the noise allowance. Such a cell holds a vertical
+    step: an object's edge, or foliage over ground seen through a gap (the cell's minimum is then the ground,
+    and the opening of the minimum surface cannot see the foliage)."""
+    span = block_max(dsm, f) - zmin
+    with np.errstate(invalid="ignore"):
+        return span > limit_m
+
+
+ROUGH_FACTOR = 3.0  # a classification cell is rough when its DSM roughness exceeds this many times the site's
+ROUGH_FLOOR_M = 0.04  # ... and this much (a noise-free DSM: sharp crests are not rough)
+
+
+def plane_residual_rms(a: np.ndarray) -> np.ndarray:
+    """RMS residual (1 sigma, 6 degrees of freedom) of a least-squares plane fitted to each cell's 3 x 3
+    neighbourhood: the DSM's local roughness, blind to slope (and nearly so to the curvature of a crest)."""
+    m = ndimage.uniform_filter(a, 3, mode="nearest")
+    m2 = ndimage.uniform_filter(a * a, 3, mode="nearest")
+    kx = np.array([[-1.0, 0.0, 1.0]] * 3)
+    sx = ndimage.correlate(a, kx, mode="nearest")
+    sy = ndimage.correlate(a, kx.T, mode="nearest")
+    rss = 9.0 * (m2 - m * m) - (sx * sx + sy * sy) / 6.0
+    return np.sqrt(np.maximum(rss, 0.0) / 6.0)
+
+
+def rough_blocks(dsm: np.ndarray, f: int) -> np.ndarray:
+    """Classification cells (f x f DSM cells) whose median DSM roughness (:func:`plane_residual_rms`) exceeds
+    ``ROUGH_FACTOR`` times the median over the site (the DSM's noise on ground, which most of a site is) and
+    ``ROUGH_FLOOR_M``, in groups of at least 2 x 2: foliage, whose matched surface is rough where ground, piles
+    and machines are smooth. Dome-shaped bushes escape the slope rule (their sides are no steeper than a
+    pile's); their roughness gives them away."""
+    valid = np.isfinite(dsm)
+    a = nearest_fill(np.where(valid, dsm, 0.0), valid) if not valid.all() else np.asarray(dsm, np.float64)
+    rho = np.where(valid, plane_residual_rms(a), np.nan)
+    h, w = rho.shape
+    hc, wc = -(-h // f), -(-w // f)
+    pad = np.full((hc * f, wc * f), np.nan)
+    pad[:h, :w] = rho
+    with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+        block = np.nanmedian(pad.reshape(hc, f, wc, f).transpose(0, 2, 1, 3).reshape(hc, wc, f * f), axis=2)
+    ok = np.isfinite(block)
+    if not ok.any():
+        return np.zeros((hc, wc), bool)
+    limit = max(ROUGH_FACTOR * float(np.median(block[ok])), ROUGH_FLOOR_M)
+    rough = ok & (np.where(ok, block, 0.0) > limit)
+    return ndimage.binary_opening(rough, structure=np.ones((2, 2), bool))
+
+
 def nearest_fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Every cell takes the value of the nearest known cell."""
     if known.all():
@@ -130,6 +198,7 @@ def classify_dsm(dsm: np.ndarray, resolution_m: float, options: GroundFilterOpti
     have = np.isfinite(zmin)
     z = nearest_fill(np.where(have, zmin, 0.0), have)
     med = ndimage.median_filter(z, size=3, mode="nearest")
+    clamped = have & (z < med - o.low_outlier_m)
     z = np.maximum(z, med - o.low_outlier_m)
 
     kmax = max(1, int(np.ceil(0.5 * o.max_object_m / cell)))
@@ -140,8 +209,15 @@ def classify_dsm(dsm: np.ndarray, resolution_m: float, options: GroundFilterOpti
         opened = ndimage.grey_opening(prev, footprint=disk(k), mode="nearest")
         objects |= (prev - opened) > thr
         prev = opened
+    objects |= stepped_blocks(dsm, zmin, f, o.elevation_threshold_m + o.slope * cell * np.sqrt(2.0))
+    objects |= rough_blocks(dsm, f)
     objects &= have
-    region = ndimage.binary_dilation(objects, structure=np.ones((3, 3), bool)) & have
+    # ground seen through gaps in a canopy is clamped as a low outlier (its neighbours are foliage): it is not
+    # an object, but its clamped height (the foliage less low_outlier_m) must not hold the provisional ground
+    # up under the crown: clamped cells joined to an object (8-neighbourhood) go into the object's region
+    near = ndimage.binary_dilation(objects, structure=np.ones((3, 3), bool))
+    gaps = ndimage.binary_propagation(clamped & near, structure=np.ones((3, 3), bool), mask=clamped)
+    region = ndimage.binary_dilation(objects | gaps, structure=np.ones((3, 3), bool)) & have
 
     ground_c = harmonic_fill(z, ~region & have) if region.any() else z
     g = upsample_bilinear(ground_c, f, dsm.shape)
