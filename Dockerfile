@@ -18,6 +18,13 @@ RUN pip install -q .
 # numba kernels compiled into the image (minutes here, not in each container's first solve); numba only
 # reads a cache directory it can write, hence NUMBA_CACHE_DIR owned by the runtime user
 RUN python -m georef_core.warmup
+# the GNSS kernels compiled ahead of time (georef_core/gnss/aot_build.py): `georef gnss solve` then starts without
+# numba. For a generic x86-64 CPU (the image runs on other machines than the one that built it); the C compiler
+# only for this step. A failure leaves numba's cached kernels in use (a message, not a failed build).
+RUN apt-get update -qq \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends gcc libc6-dev \
+ && python -m georef_core.gnss.aot_build --target-cpu generic \
+ && apt-get purge -y -qq gcc libc6-dev && apt-get autoremove -y -qq && rm -rf /var/lib/apt/lists/*
 
 RUN useradd --create-home --uid 10001 georef && mkdir -p /data && chown georef /data && chown -R georef /opt/numba-cache
 USER georef

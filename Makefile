@@ -13,6 +13,7 @@ $(STAMP): pyproject.toml scripts/install_system_deps.sh
 	$(PY) -m pip install -q --upgrade pip wheel
 	$(PY) -m pip install -q -e '.[dev]'
 	$(PY) -m georef_core.warmup    # compiles the numba kernels into their cache now (minutes), not in the first solve
+	$(PY) -m georef_core.gnss.aot_build || echo "georef aot: not built; the solve uses numba's JIT cache"   # the GNSS kernels ahead of time (minutes): `georef gnss solve` without numba
 	touch $(STAMP)
 
 $(UI): frontend/package.json frontend/package-lock.json $(shell find frontend/src frontend/index.html frontend/vite.config.ts -type f 2>/dev/null)

@@ -28,6 +28,12 @@ and in the Dockerfile, a process would otherwise compile ~40 modules from source
     python bench/gnss_vs_rtklib.py --all      # every reference case
     python bench/gnss_vs_rtklib.py --repeat 5 car
     python bench/gnss_vs_rtklib.py --repeat 1 --breakdown 5 --before /tmp/georef_before --all
+    python bench/gnss_vs_rtklib.py --repeat 1 --process-repeat 3 --jit-baseline --all
+
+With the kernels compiled ahead of time (`python -m georef_core.gnss.aot_build`, run by `make install`),
+`georef gnss solve` does not import numba (georef_core/gnss/kernel_loader.py); --jit-baseline times the
+same command with GEOREF_GNSS_AOT=0 (numba's JIT cache, as before) as the "before" column, checks that its
+.pos is byte-identical, and the breakdown shows both processes.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from __future__ import annotations
 import argparse
 import compileall
 import json
+import os
 import resource
 import statistics
 import subprocess
@@ -152,10 +159,55 @@ marks["kernels loaded"] = len(loads)
 print(json.dumps(marks))
 """
 
+# the same with the ahead-of-time kernels (kernel_loader.prefer_aot): numba is not imported
+_BREAKDOWN_AOT_PROCESS = """
+import json, sys, time
+t0 = time.process_time()
+marks = {}
+def mark(name):
+    global t0
+    t = time.process_time(); marks[name] = t - t0; t0 = t
+sys.path.insert(0, sys.argv[1])
+import numpy
+mark("import numpy")
+from georef_core.gnss import kernel_loader
+if not kernel_loader.prefer_aot():
+    raise SystemExit("the ahead-of-time kernels are not usable: " + kernel_loader.status()["why"])
+mark("load the ahead-of-time kernels")
+from georef_core.cli import gnss_commands
+from georef_core.gnss.rtk_options import read_rtklib_conf
+from georef_core.steps import gnss_solve
+mark("import georef_core")
+solving = []
+_solve_files = gnss_solve.solve_files
+def solve_files(*a, **k):
+    t, w = time.process_time(), time.perf_counter()
+    sol = _solve_files(*a, **k)
+    solving.append((time.process_time() - t, time.perf_counter() - w, dict(sol.timings_s)))
+    return sol
+gnss_solve.solve_files = solve_files
+conf, out, rover, base, navs = sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
+opts = read_rtklib_conf(conf).options
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)
+first = time.process_time() - t0
+t = time.process_time()
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)    # again: the same work without first-call costs
+total = time.process_time() - t
+solve_s, solve_wall, timings = solving[-1]
+marks["reading"] = solve_s * min(1.0, timings.get("load", 0.0) / solve_wall)
+marks["solve"] = solve_s - marks["reading"]
+marks["writing"] = total - solve_s
+marks["other first-call costs"] = first - total
+marks["kernels loaded"] = 0
+if "numba" in sys.modules or kernel_loader.status()["mode"] != "aot":
+    raise SystemExit("numba was imported: " + kernel_loader.status()["why"])
+print(json.dumps(marks))
+"""
+
 _STARTUP_PROCESS = "pass"
 
 
-def fixed_cost_breakdown(tree: Path, conf, rover, base, navs, tmp: Path, repeat: int) -> dict:
+def fixed_cost_breakdown(tree: Path, conf, rover, base, navs, tmp: Path, repeat: int, aot: bool = False) -> dict:
     """Median over `repeat` fresh processes of each part of our process's CPU time (seconds), the
     interpreter's own start (`python -c pass`) included."""
     files = [str(f) for f in (rover, base, *navs)]
@@ -165,7 +217,7 @@ def fixed_cost_breakdown(tree: Path, conf, rover, base, navs, tmp: Path, repeat:
         subprocess.run([sys.executable, "-c", _STARTUP_PROCESS], check=True)
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         start = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
-        res = subprocess.run([sys.executable, "-c", _BREAKDOWN_PROCESS, str(tree), str(conf),
+        res = subprocess.run([sys.executable, "-c", _BREAKDOWN_AOT_PROCESS if aot else _BREAKDOWN_PROCESS, str(tree), str(conf),
                               str(tmp / "breakdown.pos"), *files], capture_output=True, text=True)
         if res.returncode != 0:
             raise RuntimeError(f"breakdown process failed: {res.stderr[-2000:]}")
@@ -185,13 +237,13 @@ def byte_compile(tree: Path) -> None:
     compileall.compile_dir(str(tree / "georef_core"), quiet=1)
 
 
-def _timed(cmd, out: Path) -> tuple[float, float]:
+def _timed(cmd, out: Path, env: dict | None = None) -> tuple[float, float]:
     """Wall seconds of the process, and its CPU seconds (user + system: less disturbed than the wall
     time by other work on a shared machine)."""
     out.unlink(missing_ok=True)
     cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     elapsed = time.perf_counter() - t0
     cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0 or not out.exists():
@@ -200,7 +252,7 @@ def _timed(cmd, out: Path) -> tuple[float, float]:
 
 
 def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int,
-                        before: Path | None = None) -> dict[str, tuple[float, float]]:
+                        before: Path | None = None, jit_baseline: bool = False) -> dict[str, tuple[float, float]]:
     """Median seconds of a fresh process, start to .pos written: demo5 (python -c + pyrtklib5.postpos), ours
     (georef gnss solve) and, with `before` (a folder holding an earlier georef_core), that copy's command;
     alternating: {"demo5" | "ours" | "before": (median wall s, median CPU s)}. The before copy's .pos must be
@@ -210,12 +262,15 @@ def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int,
     solve = ["gnss", "solve", *files, "--rtklib-conf", str(conf), "--out"]
     ours = [*_georef_command(REPO if before else None), *solve, str(tmp / "proc_ours.pos")]
     old = [*_georef_command(before), *solve, str(tmp / "proc_before.pos")] if before else None
+    old_env = None
+    if jit_baseline:   # the same command on numba's JIT path (kernel_loader.py)
+        old, old_env = [*_georef_command(None), *solve, str(tmp / "proc_before.pos")], {**os.environ, "GEOREF_GNSS_AOT": "0"}
     runs = {"demo5": [], "ours": [], "before": []}
     for _ in range(repeat):
         runs["demo5"].append(_timed(demo5, tmp / "proc_demo5.pos"))
         runs["ours"].append(_timed(ours, tmp / "proc_ours.pos"))
         if old:
-            runs["before"].append(_timed(old, tmp / "proc_before.pos"))
+            runs["before"].append(_timed(old, tmp / "proc_before.pos", old_env))
     if old and (tmp / "proc_before.pos").read_bytes() != (tmp / "proc_ours.pos").read_bytes():
         print(f"  note: {conf.name}: the before copy's .pos differs from ours (not the same engine?)")
     return {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in runs.items() if v}
@@ -232,7 +287,12 @@ def main() -> int:
                     help="fresh instrumented processes for the fixed-cost breakdown (median; 0: skip)")
     ap.add_argument("--before", type=Path, metavar="DIR",
                     help="a folder holding a copy of georef_core from before a change: timed beside ours")
+    ap.add_argument("--jit-baseline", action="store_true",
+                    help="time our command on numba's JIT path (GEOREF_GNSS_AOT=0) as the before column")
     args = ap.parse_args()
+    if args.before is not None and args.jit_baseline:
+        print("--before and --jit-baseline: one or the other")
+        return 1
     if args.before is not None and not (args.before / "georef_core" / "cli" / "main.py").is_file():
         print(f"--before {args.before}: no georef_core/cli/main.py there")
         return 1
@@ -253,9 +313,13 @@ def main() -> int:
     if args.breakdown > 0:
         ds, name, rover, base, navs, conf = cases[0][:6]
         print(f"our fixed cost, {ds}/{name} (median of {args.breakdown} fresh processes, CPU seconds):")
-        for label, tree in (("before", args.before), ("now", REPO)):
+        from georef_core.gnss import kernel_loader
+
+        aot_now = kernel_loader.load_aot()[0] is not None
+        for label, tree, aot in (("before", args.before, False), ("numba JIT path", REPO if args.jit_baseline else None, False),
+                                 ("now" + (" (ahead-of-time kernels)" if aot_now else ""), REPO, aot_now)):
             if tree is not None:
-                print_breakdown(f"  {label}", fixed_cost_breakdown(tree, conf, rover, base, navs, tmp, args.breakdown))
+                print_breakdown(f"  {label}", fixed_cost_breakdown(tree, conf, rover, base, navs, tmp, args.breakdown, aot))
     print("in-process: epochs per second, ratio ours/demo5 (best of --repeat); whole process (fresh processes, "
           "median of --process-repeat): seconds start to .pos written, ratio demo5/ours (> 1: ours finishes first)")
     print(f"{'dataset/case':52s} {'epochs':>6s} {'demo5 ep/s':>10s} {'ours ep/s':>10s} {'ratio':>6s} "
@@ -282,7 +346,7 @@ def main() -> int:
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
         ratios.append(td / to)
         if args.process_repeat > 0:
-            w = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat, args.before)
+            w = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat, args.before, args.jit_baseline)
             (pd_s, pd_cpu), (po_s, po_cpu) = w["demo5"], w["ours"]
             proc_ratios.append(pd_s / po_s)
             cpu_ratios.append(pd_cpu / po_cpu)
@@ -306,11 +370,13 @@ def main() -> int:
               f"min {min(proc_ratios):.2f}, max {max(proc_ratios):.2f} over {len(proc_ratios)} cases")
         print(f"  in CPU seconds: median {statistics.median(cpu_ratios):.2f}, min {min(cpu_ratios):.2f}, "
               f"max {max(cpu_ratios):.2f}")
+        print(f"  cases where ours finishes first (ratio >= 1): {sum(r >= 1 for r in proc_ratios)} of {len(proc_ratios)} "
+              f"in seconds, {sum(r >= 1 for r in cpu_ratios)} of {len(cpu_ratios)} in CPU seconds")
     if before_ratios:
         for i, what in enumerate(("seconds", "CPU seconds")):
             r = [b[i] for b in before_ratios]
             print(f"  before the change, same rounds, in {what}: median {statistics.median(r):.2f}, "
-                  f"min {min(r):.2f}, max {max(r):.2f}")
+                  f"min {min(r):.2f}, max {max(r):.2f}, ratio >= 1 in {sum(x >= 1 for x in r)} of {len(r)}")
     return 0
 
 

@@ -119,16 +119,21 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
 
 
 def cmd_solve(args) -> int:
+    from ..gnss import kernel_loader
+
+    # the kernels compiled ahead of time (make install), when present and current: numba is not imported
+    aot = kernel_loader.prefer_aot()
     from ..steps.gnss_solve import run_gnss_solve
 
     opts, notes = options_from_args(args)
     for n in notes:
         print(f"georef: warning: {n}", file=sys.stderr)
-    from ..warmup import GNSS_COMPILE_ESTIMATE_S, gnss_kernels_cached
-    from .numba_start import trim_numba_start
+    if not aot:
+        from ..warmup import GNSS_COMPILE_ESTIMATE_S, gnss_kernels_cached
+        from .numba_start import trim_numba_start
 
-    trim_numba_start()   # this process solves once and ends: skip what numba loads that the solve never uses
-    if not gnss_kernels_cached():
+        trim_numba_start()   # this process solves once and ends: skip what numba loads that the solve never uses
+    if not aot and not gnss_kernels_cached():
         print(f"georef: first run: compiling the GNSS kernels, about {GNSS_COMPILE_ESTIMATE_S} s (once; "
               "`georef warmup` does it ahead of time)", file=sys.stderr, flush=True)
     summary = run_gnss_solve(args.rover, args.base, args.nav, args.out, opts, events_csv=args.events, epsg=args.crs)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .lambda_kernels import integer_least_squares
 

@@ -6,7 +6,7 @@ formulas, same order of operations; tests/gnss/test_spp_kernels.py checks them a
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .atmosphere import ERR_SAAS_M, GPS_L1_HZ, TROPO_MAX_HEIGHT_M, TROPO_MIN_HEIGHT_M
 from .constants import CLIGHT_M_S, WGS84_A_M, WGS84_E2

@@ -5,7 +5,7 @@ from toe, then one shorter step, RTKLIB's step pattern)."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .constants import GLO_A_M, GLO_J2, GM_GLO_M3_S2, OMEGA_EARTH_GLO_RAD_S
 

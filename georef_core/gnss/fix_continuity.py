@@ -21,7 +21,7 @@ a few seconds away (e.g. 2 epochs 49 mm RMS from a run 3 s earlier on 10 signals
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .rtk_filter import STATUS_FIX, STATUS_FLOAT, FilterOutput
 from .rtk_kernels import phase_residuals

@@ -7,7 +7,7 @@ the back-transformation of the candidates by replaying the log. Arrays are float
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 # The lazy reduction leaves most entries of L unreduced; beyond these sizes all Gauss transformations are
 # applied (lambda_search._GROWTH_LIMIT and _GROWTH_LIMIT_LOOP).

@@ -13,7 +13,7 @@ the whole record back to the Python path.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 _SPACE, _PLUS, _MINUS, _DOT, _ZERO, _NINE = 32, 43, 45, 46, 48, 57
 _UPPER_D, _UPPER_E, _LOWER_D, _LOWER_E = 68, 69, 100, 101

@@ -4,7 +4,7 @@ digits (rinex_obs.py reads the files and handles every other layout on its slow 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 _SPACE, _MINUS, _DOT, _ZERO, _NINE = 32, 45, 46, 48, 57
 

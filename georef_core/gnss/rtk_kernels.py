@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .ambiguity_kernels import dd_pairs, resolve
 from .constants import CLIGHT_M_S, OMEGA_EARTH_RAD_S

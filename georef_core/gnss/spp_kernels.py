@@ -6,7 +6,7 @@ then the receiver velocity and clock drift from Doppler."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 from .atmosphere_kernels import (
     IONO_OFF_VARIANCE_M2,

@@ -16,7 +16,7 @@ finds 26 slips in 1180 epochs beside the 932 that the receivers flag (docs/gnss.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .kernel_loader import njit
 
 
 DEFAULT_THRESHOLD_M = 0.05   # residual beyond which a signal is called slipped (a quarter cycle on L1)

@@ -3,6 +3,7 @@ ahead (georef_core/warmup.py, run by `make install`), the first-run notice and t
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -111,7 +112,8 @@ def test_gnss_solve_process_skips_what_numba_loads_for_nothing(tmp_path):
     LLVM-lock event callbacks are off (cli/numba_start.py); the trajectory is the same as a solve in a process that loaded both."""
     out = tmp_path / "cli.pos"
     res = subprocess.run([sys.executable, "-c", _SOLVE_PROBE, str(ROVER), str(BASE), str(NAV), str(out)],
-                         capture_output=True, text=True)
+                         capture_output=True, text=True,
+                         env={**os.environ, "GEOREF_GNSS_AOT": "0"})   # numba's path (kernel_loader.py)
     assert res.returncode == 0, res.stderr[-2000:]
     rc, linalg, pycparser, cffi_typing, lapack, lock_events = res.stdout.split()[-6:]
     assert rc == "0" and lapack == "True" and lock_events == "False"
