@@ -19,7 +19,9 @@ $(STAMP): pyproject.toml scripts/install_system_deps.sh
 $(UI): frontend/package.json frontend/package-lock.json $(shell find frontend/src frontend/index.html frontend/vite.config.ts -type f 2>/dev/null)
 	cd frontend && npm ci --no-audit --no-fund --loglevel=error && npm run build
 
-install: $(STAMP) $(UI)
+# the Python environment and the browser UI are independent: built side by side (two jobs)
+install:
+	@$(MAKE) --no-print-directory -j2 $(STAMP) $(UI)
 
 # The embedded shape: SQLite, local file storage, an in-process Celery worker; the demo site is processed on first start.
 run: install
