@@ -7,7 +7,11 @@ ambiguity error would), processed with the offsets not modelled (`--flight-offse
 (default), with no control point and with one. Prints the camera centres' ANEES against the simulator's
 truth, the check points' 3D RMSE and the offsets estimated with their sigma.
 
-    python bench/flight_offsets_sim.py [--seed 23] [--keep DIR]
+    python bench/flight_offsets_sim.py [--seed 23] [--keep DIR] [--modes joint,similarity,gcp]
+
+`--modes similarity` runs the 7-parameter + delay mode (no control point: the lever arm is the MRK's, held),
+`--modes gcp` the lever-arm/delay mode on three control points (the other two targets check points); both with
+the offsets not modelled and modelled, printing also the delay with its sigma (the simulator's is 0).
 """
 
 from __future__ import annotations
@@ -70,6 +74,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=23)
     ap.add_argument("--images", type=int, default=30)
     ap.add_argument("--keep", help="work folder to keep (default: a temporary one)")
+    ap.add_argument("--modes", default="joint", help="adjustment modes, comma-separated (joint, similarity, gcp)")
     a = ap.parse_args()
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="flight_offsets_"))
     survey = work / "site"
@@ -82,25 +87,35 @@ def main() -> int:
         points = [r[0] for r in csv.reader(f) if r and not r[0].startswith("#")][1:]
     step.match_images_to_events = _shifted_match
     first = None
-    for n_control in (0, 1):
-        for mode in ("off", "auto"):
-            out = work / f"out_{n_control}_{mode}"
-            if first is not None:
-                for sub in ("ppk", "sfm", "inputs"):
-                    shutil.copytree(first / sub, out / sub, dirs_exist_ok=True)
-            control = points[len(points) // 2] if n_control else "none"
-            t1 = time.perf_counter()
-            rc = georef(["georef", str(survey), "--out", str(out), "--control", control, "--no-leave-one-out",
-                         "--flight-offsets", mode])
-            if rc != 0:
-                print(f"georef failed ({rc})")
-                continue
-            first = first or out
-            f = _figures(survey, out)
-            print(f"{n_control} GCP ({control}), offsets {'modelled' if mode == 'auto' else 'not modelled'}: camera "
-                  f"centres ANEES {f['centre_anees']:.2f} (mean error {f['centre_mean_error_mm']} mm, median sigma "
-                  f"{f['centre_median_sigma_mm']} mm); {f['n_check']} check points 3D RMSE {f['rmse_3d_mm']:.1f} mm, "
-                  f"ANEES {f['check_anees']:.2f}; offsets (cm, +- sigma) {f['offsets']}; {time.perf_counter() - t1:.0f} s")
+    cases = []
+    for adj_mode in a.modes.split(","):
+        if adj_mode == "joint":
+            cases += [("joint", n, m) for n in (0, 1) for m in ("off", "auto")]
+        else:
+            cases += [(adj_mode, 0 if adj_mode == "similarity" else 3, m) for m in ("off", "auto")]
+    for adj_mode, n_control, mode in cases:
+        out = work / (f"out_{n_control}_{mode}" if adj_mode == "joint" else f"out_{adj_mode}_{mode}")
+        if first is not None:
+            for sub in ("ppk", "sfm", "inputs"):
+                shutil.copytree(first / sub, out / sub, dirs_exist_ok=True)
+        control = ("none" if not n_control else points[len(points) // 2] if n_control == 1
+                   else ",".join(points[:n_control]))
+        t1 = time.perf_counter()
+        rc = georef(["georef", str(survey), "--out", str(out), "--control", control, "--no-leave-one-out",
+                     "--flight-offsets", mode, "--mode", adj_mode])
+        if rc != 0:
+            print(f"georef failed ({rc})")
+            continue
+        first = first or out
+        f = _figures(survey, out)
+        lad = json.loads((out / "lever_arm_delay.json").read_text())
+        if adj_mode != "joint":
+            print(f"mode {adj_mode}: delay {1000 * lad['delay_s']:.2f} +- "
+                  f"{1000 * (lad['delay_sigma_s'] or float('nan')):.2f} ms")
+        print(f"{adj_mode}, {n_control} GCP ({control}), offsets {'modelled' if mode == 'auto' else 'not modelled'}: camera "
+              f"centres ANEES {f['centre_anees']:.2f} (mean error {f['centre_mean_error_mm']} mm, median sigma "
+              f"{f['centre_median_sigma_mm']} mm); {f['n_check']} check points 3D RMSE {f['rmse_3d_mm']:.1f} mm, "
+              f"ANEES {f['check_anees']:.2f}; offsets (cm, +- sigma) {f['offsets']}; {time.perf_counter() - t1:.0f} s")
     return 0
 
 

@@ -245,10 +245,15 @@ class _Layout:
 def flight_offset_prior_cov(n_flights: int, common_sigma_enu_m, flight_sigma_enu_m) -> np.ndarray:
     """(3F, 3F) prior covariance of F stacked per-flight GNSS offsets (E, N, U each): a part shared by every
     flight (``common_sigma_enu_m``, e.g. the base position's sigma when the base is not surveyed) plus an
-    independent part of each flight's own (``flight_sigma_enu_m``: its ambiguity set, an RTK network offset)."""
+    independent part of each flight's own (``flight_sigma_enu_m``: its ambiguity set, an RTK network offset),
+    one (3,) for every flight or (F, 3), one row per flight (e.g. from each flight's RTK quality)."""
     common = np.diag(np.asarray(common_sigma_enu_m, float) ** 2 * np.ones(3))
-    own = np.diag(np.asarray(flight_sigma_enu_m, float) ** 2 * np.ones(3))
-    return np.kron(np.ones((n_flights, n_flights)), common) + np.kron(np.eye(n_flights), own)
+    own_sd = np.asarray(flight_sigma_enu_m, float)
+    own_sd = np.broadcast_to(own_sd.reshape(-1, 3) if own_sd.size == 3 * n_flights and own_sd.ndim == 2
+                             else own_sd * np.ones(3), (n_flights, 3))
+    own = np.zeros((3 * n_flights, 3 * n_flights))
+    own[np.diag_indices(3 * n_flights)] = own_sd.reshape(-1) ** 2
+    return np.kron(np.ones((n_flights, n_flights)), common) + own
 
 
 def row_offset_per_readout(v_px: np.ndarray, image_height_px: float) -> np.ndarray:

@@ -55,10 +55,11 @@ def register(sub) -> None:
                    help="rolling-shutter readout time, first to last row (ms), held fixed; implies --rolling-shutter "
                         "(default: estimated in the adjustment for a rolling-shutter camera)")
     p.add_argument("--flight-offsets", choices=("auto", "on", "off"), default="auto",
-                   help="a common GNSS offset per flight (battery) with a prior, in the joint adjustment (default auto: "
-                        "with two or more flights or an unsurveyed base)")
+                   help="a common GNSS offset per flight (battery) with a prior, in every mode (default auto: with "
+                        "two or more flights, an unsurveyed base or positions that are not RTK-fixed)")
     p.add_argument("--flight-offset-sigma", metavar="H,V", default=None,
-                   help="each flight's own offset sigma, horizontal and vertical (m; default 0.01,0.015)")
+                   help="each flight's own offset sigma, horizontal and vertical (m; default 0.01,0.015; raised to "
+                        "the median sigma of the flight's positions, per fixed / not-fixed part)")
     p.add_argument("--flight-gap", type=float, metavar="S", default=120.0,
                    help="without flight folders, a gap of more than S seconds between photos starts a flight (120)")
     p.set_defaults(func=cmd_georef)

@@ -425,7 +425,8 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
     if fo:
         csig = np.sqrt(np.einsum("nii->ni", np.asarray(adj.centre_cov_enu_m2, float)))
         ch, cv = float(np.median(np.hypot(csig[:, 0], csig[:, 1]) / np.sqrt(2))), float(np.median(csig[:, 2]))
-        basis.append({"kind": "per-flight GNSS offsets", "flights": len(fo["flights"]), "prior": fo["prior"],
+        basis.append({"kind": "per-flight GNSS offsets", "flights": len({r["flight"] for r in fo["flights"]}),
+                      "offsets_modelled": len(fo["flights"]), "prior": fo["prior"],
                       "estimated_by": fo["estimated_by"],
                       "offsets": [{k: r[k] for k in ("flight", "offset_enu_m", "sigma_enu_m")} for r in fo["flights"]],
                       "camera_centre_median_sigma_m": {"horizontal": round(ch, 4), "vertical": round(cv, 4)}})
@@ -434,10 +435,15 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
     lead = "the survey's absolute position rests on " + " and ".join(text)
     if fo:
         sd = np.array([r["sigma_enu_m"] for r in fo["flights"]])
-        lead += (f". Each of the {len(fo['flights'])} flight(s) is given a common offset of its GNSS positions (prior "
+        n_fl = len({r["flight"] for r in fo["flights"]})
+        lead += (f". Each of the {n_fl} flight(s) is given a common offset of its GNSS positions (prior "
                  f"{_metres(float(np.hypot(*fo['prior']['flight_sigma_enu_m'][:2]) / np.sqrt(2)))} horizontally, "
                  f"{_metres(fo['prior']['flight_sigma_enu_m'][2])} vertically per flight"
                  + (", plus the base position's sigma common to all" if any(fo["prior"]["common_sigma_enu_m"]) else "")
+                 + "".join(f"; flight {r['flight']}'s {r['images']} exposures not fixed (status {r['status']}) have "
+                           f"their own offset, prior {_metres(float(np.hypot(*r['prior_sigma_enu_m'][:2]) / np.sqrt(2)))} "
+                           f"horizontally, {_metres(r['prior_sigma_enu_m'][2])} vertically (from their own sigmas)"
+                           for r in fo["flights"] if r.get("quality") == "not fixed")
                  + f"), estimated by {fo['estimated_by'].split(':')[0]}: offsets known to "
                  f"{_metres(float(np.median(np.hypot(sd[:, 0], sd[:, 1]) / np.sqrt(2))))} horizontally, "
                  f"{_metres(float(np.median(sd[:, 2])))} vertically; the camera centres' stated sigmas include it "

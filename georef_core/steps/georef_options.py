@@ -47,12 +47,15 @@ class GeorefOptions:
     # a camera's factory calibration written into its photos (DJI XMP DewarpData): "prior" weights it
     # (FACTORY_CALIBRATION_SIGMA) with the self-calibration, "fixed" holds it, "ignore" self-calibrates freely
     factory_calibration: str = "prior"
-    # a common 3-D offset of the GNSS camera positions of each flight (battery), with a prior, in the joint
+    # a common 3-D offset of the GNSS camera positions of each flight (battery), with a prior, in every mode's
     # adjustment (docs/georeferencing.md, "Several flights"): "auto" where the positions come in two or more
-    # flights or their base position is not surveyed, "on" always (PPK / RTK positions), "off" never
+    # flights, their base position is not surveyed or some are not fixed, "on" always (PPK / RTK positions), "off"
+    # never
     flight_offsets: str = "auto"
     # each flight's own offset sigma (horizontal, vertical; m): a wrong-but-consistent ambiguity set, an RTK
-    # network's offset; an assumption (a survey-grade RTK specification), the base position's sigma adds to it
+    # network's offset; an assumption (a survey-grade RTK specification), the base position's sigma adds to it;
+    # raised per flight by its positions' own sigmas, and a flight's exposures that are not fixed get their own
+    # offset (docs/dji.md, "The per-flight prior from the RTK quality")
     flight_offset_sigma_m: tuple[float, float] = (0.01, 0.015)
     flight_gap_s: float = 120.0               # without flight folders: a gap this long between photos starts a flight
     # the platform's georef step: OUT_DIR/ppk is the gnss step's result (made with the run's GNSS options and,
