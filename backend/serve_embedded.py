@@ -153,7 +153,9 @@ def main(argv=None) -> int:
     # uvicorn re-raises SIGINT/SIGTERM after its graceful shutdown (the process then dies without running
     # `finally`): stop the worker from uvicorn's shutdown instead
     server = uvicorn.Server(uvicorn_config(settings, "backend.main:app", args.host, args.port))
-    _raise_open_files_limit()
+    from .core.http_protocol import raise_open_files_limit
+
+    raise_open_files_limit()   # many idle or slow connections: a descriptor each
     try:
         import asyncio
 
@@ -214,20 +216,6 @@ def _group_alive(pgid: int) -> bool:
         return False
     except PermissionError:
         return True
-
-
-def _raise_open_files_limit() -> None:
-    """Each client connection is a file descriptor: the soft limit (often 1024) raised to the hard one, so
-    that many idle or slow connections do not stop the server from accepting new ones."""
-    try:
-        import resource
-
-        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-        want = hard if hard != resource.RLIM_INFINITY else 65536
-        if soft != resource.RLIM_INFINITY and soft < want:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
-    except (ImportError, ValueError, OSError):
-        pass
 
 
 def _die_with_parent() -> None:

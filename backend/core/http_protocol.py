@@ -157,11 +157,11 @@ class SettingsHttpProtocol(GuardedHttpToolsProtocol):
             cls.header_timeout_s = float(settings.request_header_timeout_s)
             cls.max_header_bytes = int(settings.max_request_header_bytes)
             cls._configured = True
-            _raise_open_files_limit()
+            raise_open_files_limit()
         super().__init__(*args, **kwargs)
 
 
-def _raise_open_files_limit() -> None:
+def raise_open_files_limit() -> None:
     """Each client connection is a file descriptor: the soft limit (often 1024) raised to the hard one, so
     that many idle or slow connections do not stop the server from accepting new ones."""
     try:

@@ -140,7 +140,7 @@ def _check_inside(info: RasterInfo, poly: AreaPolygon) -> None:
     check_inside(info, poly)
 
 
-def _block_sums(a: np.ndarray, block: int) -> np.ndarray:
+def block_sums(a: np.ndarray, block: int) -> np.ndarray:
     """Sum over square blocks of ``block`` cells (the array's rows start on a block boundary)."""
     ny, nx = -(-a.shape[0] // block) * block, -(-a.shape[1] // block) * block
     if (ny, nx) != a.shape:
@@ -318,7 +318,7 @@ def compute_cut_fill(dsm, design: DesignSurface, polygon: AreaPolygon, out_dir=N
                     s["d_max"] = max(s["d_max"], float(dz[ok].max()))
                 c0 = r0 // block
                 for key, wk in (("all", w), ("cut", w_cut), ("fill", w - w_cut)):
-                    bs = _block_sums(wk, block)
+                    bs = block_sums(wk, block)
                     U[key][c0:c0 + bs.shape[0]] += bs
                 first = (-r0) % stride
                 small.append(np.where(ok, d, np.nan)[first::stride, ::stride].astype(np.float32))

@@ -36,6 +36,7 @@ from ..errors import InputFileError, ProcessingError
 from ..volumes.coverage import polygon_coverage
 from ..volumes.raster_io import GridWindow
 from ..volumes.uncertainty import Z95, block_size_for, correlated_sum_sigma
+from .cut_fill import block_sums   # one block-sum (the sigma of correlated cells) for both
 
 STRIP_CELLS = 4_000_000
 FILL_CELLS = 2   # the earlier difference is extended this many cells beyond its valid cells before resampling
@@ -128,15 +129,6 @@ class _EarlierOnLaterGrid:
         return out
 
 
-def _block_sums(a: np.ndarray, block: int) -> np.ndarray:
-    ny, nx = -(-a.shape[0] // block) * block, -(-a.shape[1] // block) * block
-    if (ny, nx) != a.shape:
-        p = np.zeros((ny, nx), a.dtype)
-        p[:a.shape[0], :a.shape[1]] = a
-        a = p
-    return a.reshape(ny // block, block, nx // block, block).sum(axis=(1, 3))
-
-
 def surface_change(earlier_difference, later_difference, area, earlier: SurveyAccuracy, later: SurveyAccuracy,
                    k: float = 1.96) -> dict:
     """The change between two surveys of the same design, cell by cell (module docstring). ``*_difference``:
@@ -216,7 +208,7 @@ def surface_change(earlier_difference, later_difference, area, earlier: SurveyAc
                     w_cut = np.where(dd < 0, w, 0.0)
                 c0 = r0 // block
                 for key, wk in (("all", w), ("cut", w_cut), ("fill", w - w_cut)):
-                    bs = _block_sums(wk, block)
+                    bs = block_sums(wk, block)
                     U[key][c0:c0 + bs.shape[0]] += bs
     finally:
         ds_l.close()
