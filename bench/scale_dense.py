@@ -105,7 +105,7 @@ def main(argv=None) -> int:
         ctx = mp.get_context("spawn")
         done = []
         # phase 1 (depth parts), then phase 2 (the tiles read the depth maps: their "after")
-        for phase in ("depth", "fuse"):
+        for phase in ("depth", "radiometry", "fuse"):
             with ctx.Pool(P, maxtasksperchild=1) as pool:
                 done += [d + (phase,) for d in pool.map(_run_part, [(run, options, p) for p in parts
                                                                      if p.get("phase", "fuse") == phase],

@@ -159,13 +159,21 @@ def _own_file_wanted(path: str, step: str, part: int | None, run: dict) -> bool:
     """Whether a file the step itself recorded (a split step's plan or parts) goes into its folder: while the
     step waits for its parts or merges them (run["own_files"]: set by the caller), the plan's files, and the
     parts' files for the merge only - and for a part, the files of the earlier parts it reads (its
-    descriptor's ``after``, run["part_reads"]: set by the caller)."""
-    from georef_core.steps.contract import part_prefix
+    descriptor's ``after``, run["part_reads"]: set by the caller). Of a part's files, only those the reader
+    declared it reads: the merge, its Split's ``merge_reads``; a part, its descriptor's ``reads``
+    (run["part_read_patterns"]: set by the caller) - the tiled dense step's merge needs none of the depth maps."""
+    from georef_core.steps.contract import part_file_read, part_prefix
 
     if not run.get("own_files"):
         return False
     if path.startswith(part_prefix(step)):
-        return part is None or any(path.startswith(part_prefix(step, j)) for j in run.get("part_reads") or ())
+        rest = path[len(part_prefix(step)):]
+        within = rest.split("/", 1)[1] if "/" in rest else ""
+        if part is None:
+            split = getattr(steps_catalog.BY_NAME.get(step), "split", None)
+            return part_file_read(within, split.merge_reads if split is not None else ())
+        return (any(path.startswith(part_prefix(step, j)) for j in run.get("part_reads") or ())
+                and part_file_read(within, run.get("part_read_patterns")))
     return True
 
 
@@ -211,6 +219,8 @@ def input_hash(run: dict, step: str) -> str:
     site_data = {"crs": site["crs"]}
     if "vertical" in info.site_data:
         site_data.update(vertical=site["vertical_datum"], geoid=site["geoid"])
+        if site.get("calibration"):   # a new site calibration: the datum step computed again (none: hash unchanged)
+            site_data["calibration"] = site["calibration"].get("document")
     if "stockpiles" in info.site_data:
         site_data["stockpiles"] = [{k: p[k] for k in ("id", "name", "outline", "base")} for p in run["stockpiles"]]
     if "design" in info.site_data:   # a new design file, area, surface or tolerance: computed again
@@ -386,6 +396,7 @@ def execute_part(run_id: str, step: str, index: int) -> str:
     run = jobs.run_context(db, run_id)
     run["own_files"] = True              # the plan's files (materialise)
     run["part_reads"] = part_after(pc.descriptor)   # and those of the earlier parts it reads
+    run["part_read_patterns"] = pc.descriptor.get("reads")   # (only the files it declared, contract.Split)
     run_dir = settings.resolved_work_dir() / "runs" / run_id / "parts" / f"{step}-{index:04d}"
     try:
         with _Liveness(db, pc, settings.step_lease_s, jobs.part_heartbeat, jobs.report_part_progress) as live:

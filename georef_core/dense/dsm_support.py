@@ -116,3 +116,67 @@ def tiered_dsm(grid: RasterGrid, pts: np.ndarray, n_views: np.ndarray, min_views
     support[mask == MASK_FILLED] = SUPPORT_NONE
     stats["interpolated_cells"] = int(np.count_nonzero(mask == MASK_FILLED))
     return TieredDsm(filled, mask, support, counts, stats)
+
+
+# band 2 of dsm_support.tif: why a cell has, or lacks, a measurement (the volumes and a user can leave out what
+# was interpolated, and tell a hole nobody saw from one the images saw without agreeing on a depth)
+CAUSE_MEASURED = 0            # measured at full resolution
+CAUSE_COARSE = 1              # measured by the coarse pass only
+CAUSE_FILLED_SEEN = 2         # interpolated; >= 2 images see it but gave no consistent depth (texture, water, motion)
+CAUSE_FILLED_UNSEEN = 3       # interpolated; fewer than 2 images see it
+CAUSE_EMPTY_SEEN = 4          # no data; >= 2 images see it but gave no consistent depth (beyond the filling's reach)
+CAUSE_EMPTY_UNSEEN = 5        # no data; fewer than 2 images see it
+CAUSE_NODATA = 255            # outside the step's cells (a tiled merge: outside every tile)
+CAUSE_VALUES = ("0 measured, 1 measured by the coarse pass only, 2 interpolated: seen by 2+ images without a "
+                "consistent depth, 3 interpolated: seen by fewer than 2 images, 4 no data: seen by 2+ images without "
+                "a consistent depth, 5 no data: seen by fewer than 2 images, 255 outside")
+CAUSE_NAMES = {CAUSE_MEASURED: "measured", CAUSE_COARSE: "coarse", CAUSE_FILLED_SEEN: "interpolated_seen",
+               CAUSE_FILLED_UNSEEN: "interpolated_unseen", CAUSE_EMPTY_SEEN: "no_data_seen",
+               CAUSE_EMPTY_UNSEEN: "no_data_unseen"}
+
+
+def images_seeing(grid: RasterGrid, dsm: np.ndarray, views, frame, step: int = 8) -> np.ndarray:
+    """(rows, cols) uint16: how many of ``views`` have the cell inside their image (its point at the DSM's
+    height; empty cells at the nearest cell's, or the median height), on a lattice of every ``step``-th cell
+    spread to its neighbours (footprints are smooth). Occlusion is not tested: a count of footprints."""
+    from scipy import ndimage
+
+    rows = np.arange(step // 2, grid.height, step) if grid.height > step else np.array([grid.height // 2])
+    cols = np.arange(step // 2, grid.width, step) if grid.width > step else np.array([grid.width // 2])
+    z = np.asarray(dsm, np.float64)
+    have = np.isfinite(z)
+    if not have.any():
+        return np.zeros(z.shape, np.uint16)
+    if not have.all():
+        idx = ndimage.distance_transform_edt(~have, return_distances=False, return_indices=True)
+        z = z[idx[0], idx[1]]
+    R, C = np.meshgrid(rows, cols, indexing="ij")
+    E = grid.west + (C + 0.5) * grid.resolution_m
+    N = grid.north - (R + 0.5) * grid.resolution_m
+    X = frame.grid_to_enu(E.ravel(), N.ravel(), z[R, C].ravel())
+    count = np.zeros(X.shape[0], np.uint16)
+    for v in views:
+        uv, depth = v.project_distorted(X)
+        count += ((depth > 0) & v.inside(uv)).astype(np.uint16)
+    lattice = count.reshape(R.shape)
+    ri = np.clip(np.searchsorted(rows, np.arange(grid.height) - step / 2.0 + 0.5), 0, len(rows) - 1)
+    ci = np.clip(np.searchsorted(cols, np.arange(grid.width) - step / 2.0 + 0.5), 0, len(cols) - 1)
+    return lattice[ri][:, ci]
+
+
+def hole_causes(mask: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Band 2 of the support raster (CAUSE_*) from the mask and the images seeing each cell."""
+    two = seen >= 2
+    out = np.where(two, CAUSE_EMPTY_SEEN, CAUSE_EMPTY_UNSEEN).astype(np.uint8)
+    out[mask == MASK_MEASURED] = CAUSE_MEASURED
+    out[mask == MASK_COARSE] = CAUSE_COARSE
+    filled = mask == MASK_FILLED
+    out[filled & two] = CAUSE_FILLED_SEEN
+    out[filled & ~two] = CAUSE_FILLED_UNSEEN
+    return out
+
+
+def cause_counts(causes: np.ndarray) -> dict:
+    """Cells per cause (CAUSE_NAMES), for the summary."""
+    n = np.bincount(causes.ravel(), minlength=256)
+    return {name: int(n[code]) for code, name in CAUSE_NAMES.items()}

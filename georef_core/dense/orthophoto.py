@@ -186,11 +186,14 @@ def view_footprints(views: list[CameraView], frame: ProjectFrame, h_lo: float, h
 def build_orthophoto(views: list[CameraView], dsm: np.ndarray, dsm_grid: RasterGrid, ortho_grid: RasterGrid,
                      frame: ProjectFrame, ground_up_range: tuple[float, float],
                      depth_med: list[float], options: OrthoOptions | None = None, progress=None,
-                     labels_out: np.ndarray | None = None, info: dict | None = None) -> np.ndarray:
+                     labels_out: np.ndarray | None = None, info: dict | None = None,
+                     radiometry=None) -> np.ndarray:
     """RGBA (4, rows, cols) uint8 orthophoto on ``ortho_grid``.
 
     ``labels_out`` (int32, rows x cols), if given, receives the view index each cell was taken from (-1:
-    none); ``info`` (a dict), if given, receives the radiometric model's summary and the stage times."""
+    none); ``info`` (a dict), if given, receives the radiometric model's summary and the stage times.
+    ``radiometry`` (a RadiometryModel of ``views``, e.g. a tiled block's, block_radiometry.py): used as it is
+    instead of an estimate from this DSM (when ``options.compensate``)."""
     o = options or OrthoOptions()
     report = progress or (lambda *a: None)
     boxes, centres = view_footprints(views, frame, *ground_up_range)
@@ -199,10 +202,13 @@ def build_orthophoto(views: list[CameraView], dsm: np.ndarray, dsm_grid: RasterG
     out = np.zeros((4, ortho_grid.height, ortho_grid.width), np.uint8)
     cache: OrderedDict[int, _ViewData] = OrderedDict()
     sampler = DsmSampler(dsm, dsm_grid, frame)
-    radiometry = None
+    given, radiometry = radiometry, None
     info = info if info is not None else {}
     t0 = time.perf_counter()
-    if o.compensate and len(views) >= 2:
+    if o.compensate and given is not None:
+        radiometry = given
+        info["radiometry"] = dict(radiometry.summary(), source="given (the block's)")
+    elif o.compensate and len(views) >= 2:
         report("ortho_radiometry", 0, 1)
         pts = sample_points(np.isfinite(dsm), sampler.enu, o.radiometry_samples)
         zb: dict[int, _ViewData] = {}

@@ -27,7 +27,7 @@ from ..errors import ProcessingError
 
 __all__ = ["Option", "OptionError", "Output", "Product", "Split", "StepSpec", "StepUnavailable", "Workspace",
            "all_specs", "check_part_order", "get_spec", "load_plugins", "options_from_dataclass", "part_after",
-           "part_prefix", "register",
+           "part_file_read", "part_prefix", "register",
            "resolve_function", "run_split", "unregister"]
 
 KINDS = ("number", "integer", "string", "boolean", "numbers", "object")
@@ -186,12 +186,26 @@ class Split:
     * merge(workspace, options, parts, progress, context) -> the step's summary: reads the parts' folders,
       writes the declared outputs.
 
+    What a reader is given of the parts' files (on the platform every file of a part is recorded; a reader
+    fetches only what it reads): the merge, the files of every part whose path relative to its part folder
+    matches one of ``merge_reads`` (fnmatch patterns; empty: all of them); a part with ``"after"``, the files
+    of those parts matching its descriptor's ``"reads"`` (patterns; absent: all of them).
+
     `run_split` runs the three in one process (the CLI, a single worker); the platform sends each part to
     a worker (worker/tasks.py run_part) when the plan has more than one. Both give the same files."""
 
     plan: str
     part: str
     merge: str
+    merge_reads: tuple[str, ...] = ()
+
+
+def part_file_read(rel_path: str, patterns) -> bool:
+    """Whether a part's file (``rel_path``: relative to its part folder) is one a reader declared it reads
+    (``patterns``: fnmatch patterns; empty or None: every file)."""
+    import fnmatch
+
+    return not patterns or any(fnmatch.fnmatchcase(rel_path, p) for p in patterns)
 
 
 @dataclass(frozen=True)

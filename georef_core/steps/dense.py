@@ -120,6 +120,7 @@ class BlockDepth:
     neighbours: dict             # reference view -> its fusion neighbours
     ortho_window: tuple | None = None   # (w, s, e, n): the orthophoto only there (the tile's core and a band)
     keep_box: tuple | None = None       # (w, s, e, n): depth pixels whose point falls outside are left out
+    radiometry: dict | None = None      # the block's orthophoto radiometry (block_radiometry.py), None: the tile's own
 
 
 def run_dense(out_dir, options: DenseOptions | dict | None = None, progress: ProgressFn | None = None,
@@ -182,7 +183,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
     from ..dense import cog_writer, dsm_raster
     from ..dense.camera_views import views_from_oriented
     from ..dense.coarse_pass import coarse_points, coarse_views, fuse_coarse
-    from ..dense.dsm_support import SUPPORT_NODATA, tiered_dsm
+    from ..dense.dsm_support import (CAUSE_VALUES, SUPPORT_NODATA, cause_counts, hole_causes, images_seeing,
+                                     tiered_dsm)
     from ..dense.depth_pass import fuse_depth_maps
     from ..dense.orthophoto import build_orthophoto
     from ..dense.pair_selection import select_sources
@@ -361,11 +363,15 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                              descriptions=["0 measured, 2 measured at coarse resolution, 1 filled, 255 no data"],
                              tags={"VALUES": "0 measured, 2 measured at coarse resolution (coarse pass only), "
                                              "1 filled (interpolated), 255 no data"})
-        cog_writer.write_cog(dense_dir / "dsm_support.tif", tiers.support, dgrid.transform, frame.epsg,
-                             nodata=SUPPORT_NODATA, overview_resampling="NEAREST",
-                             descriptions=["views agreeing on the cell (0: interpolated, no support)"],
+        # band 2: why a cell has or lacks a measurement (interpolated or empty where the images saw it without
+        # agreeing on a depth, or where fewer than 2 images see it)
+        causes = hole_causes(mask, images_seeing(dgrid, dsm_filled, views, frame))
+        cog_writer.write_cog(dense_dir / "dsm_support.tif", np.stack([tiers.support, causes]), dgrid.transform,
+                             frame.epsg, nodata=SUPPORT_NODATA, overview_resampling="NEAREST",
+                             descriptions=["views agreeing on the cell (0: interpolated, no support)",
+                                           "cause: " + CAUSE_VALUES],
                              tags={"VALUES": "median number of views that agreed on the cell's points; 0 interpolated "
-                                             "(no measurement); 255 no data"})
+                                             "(no measurement); 255 no data", "CAUSES": CAUSE_VALUES})
     report("dsm", 1, 1)
 
     # ---- orthophoto --------------------------------------------------------------------------------
@@ -376,9 +382,14 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
             if block is not None and block.ortho_window is not None:
                 ogrid = _window_of(ogrid, block.ortho_window)
             gmin, gmax = np.percentile(xyz_enu[:, 2], [0.5, 99.5]) if len(xyz_enu) else (0.0, 0.0)
+            given = None
+            if block is not None and block.radiometry is not None:   # one model for the whole block
+                from ..dense.block_radiometry import model_for_views
+
+                given = model_for_views(block.radiometry, views)
             rgba = build_orthophoto(views, dsm_filled, dgrid, ogrid, frame, (float(gmin), float(gmax)),
                                     [p.depth_med_m for p in prior.views], opts.ortho_options, report,
-                                    info=(ortho_run := {}))
+                                    info=(ortho_run := {}), radiometry=given)
             from ..dense.cog_writer import RGBA
 
             comp = opts.ortho_compress.upper()
@@ -436,6 +447,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                 "coarse_cells": coarse_cells, "two_view_cells": tiers.stats["two_view_cells"],
                 "hole_fraction": round(filled / max(1, measured + filled + coarse_cells), 5),
                 "coarse_minus_fine_m": tiers.stats.get("coarse_minus_fine_m"),
+                "cells_by_cause": cause_counts(causes),
                 "bounds": [dgrid.west, dgrid.north - dgrid.height * res, dgrid.west + dgrid.width * res, dgrid.north],
                 "mean_points_per_measured_cell": round(float(counts[mask == 0].mean()), 3) if measured else None},
         "ortho": ortho_info,
@@ -465,12 +477,14 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
 
 
 def run_depth_maps(oriented_path, references: list[str], sources: dict, prior: dict, file_stem: dict, work,
-                   options: DenseOptions | dict | None = None, progress: ProgressFn | None = None) -> dict:
+                   options: DenseOptions | dict | None = None, progress: ProgressFn | None = None,
+                   radiometry_obs: Path | None = None) -> dict:
     """A tiled run's depth part (steps/dense_tiles.py): the fine and coarse depth maps of the images
     ``references`` of the oriented-images file, with the partners the whole block chose for them (``sources``:
     name -> [pair_selection.StereoPair as a dict, its ``src`` a name, no ``ref``]) and the block's sparse prior (``prior``: name -> [depth lo, median,
     hi, ground up, points]), saved as ``work/<file_stem[name]>.npy`` and ``.coarse.npy`` - the same maps a one
-    run computes. Returns what was computed (names, pairs, seconds)."""
+    run computes. ``radiometry_obs``: also the orthophoto radiometry's observations of ground points sampled
+    from these maps, saved there (block_radiometry.py). Returns what was computed (names, pairs, seconds)."""
     if isinstance(options, dict) or options is None:
         options = DenseOptions.from_dict(dict(options or {}))
     import cv2
@@ -480,13 +494,13 @@ def run_depth_maps(oriented_path, references: list[str], sources: dict, prior: d
     try:
         with threadpool_limits(limits=1, user_api="blas"):
             return _run_depth_maps(Path(oriented_path), references, sources, prior, file_stem, Path(work), options,
-                                   progress or (lambda stage, done, total: None))
+                                   progress or (lambda stage, done, total: None), radiometry_obs)
     finally:
         cv2.setNumThreads(cv_threads)
 
 
 def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, work: Path, opts: DenseOptions,
-                    report) -> dict:
+                    report, radiometry_obs: Path | None = None) -> dict:
     import cv2
 
     from ..dense.camera_views import views_from_oriented
@@ -527,6 +541,17 @@ def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, 
         for i, d in cdepth.items():
             np.save(work / f"{file_stem[views[i].name]}.coarse.npy", d)
             coarse_done.append(views[i].name)
+    t_rad, n_obs = 0.0, None
+    if radiometry_obs is not None:   # the block's orthophoto radiometry: observations from these depth maps
+        from ..dense.block_radiometry import depth_observations, save_observations
+
+        t0 = time.perf_counter()
+        report("radiometry samples", 0, 1)
+        obs = depth_observations(views, grids, {i: np.load(p) for i, p in depth_paths.items()})
+        save_observations(Path(radiometry_obs), obs, views)
+        n_obs = int(len(obs.point))
+        t_rad = time.perf_counter() - t0
+        report("radiometry samples", 1, 1)
     # the images actually matched (the pairs' reference images), each once here
     return {"computed": sorted({p["ref"] for p in pair_info}), "with_depth": sorted(views[i].name for i in depth_paths),
             "coarse_with_depth": sorted(coarse_done),
@@ -535,7 +560,9 @@ def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, 
             "matching_image_size_px": [views[0].width, views[0].height],
             "depth_map_size_px": [grids[0].width, grids[0].height],
             "timings_s": {"depth_maps": round(t_fine, 3), "coarse_depth_maps": round(t_coarse, 3),
+                          **({"radiometry_samples": round(t_rad, 3)} if radiometry_obs is not None else {}),
                           "total": round(time.perf_counter() - t_start, 3)},
+            **({"radiometry_observations": n_obs} if n_obs is not None else {}),
             "stereo_thread_s": round(stereo_s, 3)}
 
 

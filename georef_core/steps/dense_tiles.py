@@ -9,15 +9,21 @@ several workers.
 * depth parts (phase 1, one per tile's image group: the images whose ground centre lies in the core): the
   fine and coarse depth maps of their images, each image's computed once for the whole block
   (steps/dense.py run_depth_maps), in ``<dense>/parts/<k>/depth/``;
-* tiles (phase 2, ``"after"`` the depth parts whose maps they read): the images whose ground footprint meets
+* the radiometry part (phase 1b, after every depth part; when the orthophoto is compensated): the block's
+  orthophoto gains and vignetting solved once from the observations the depth parts gathered from their depth
+  maps (dense/block_radiometry.py), ``<dense>/parts/<k>/radiometry.json``; every tile mosaics with it;
+* tiles (phase 2, ``"after"`` the depth parts whose maps they read and the radiometry part): the images whose ground footprint meets
   the core grown by ``tile_margin`` footprints, fused from those depth maps with their block neighbours
   confirming (run_dense with a BlockDepth: no stereo matching), then outliers, DSM and orthophoto on the
   block's cells; only the core is kept: core rasters cut out of the tile's DSM / mask / support / orthophoto
   and the points inside the core (``<dense>/parts/<k>/core_*``). Memory is that of one tile's fusion.
 * merge: the cores are disjoint and tile the block; they are written window by window into tiled temporary
   GeoTIFFs and copied to COGs by GDAL (streamed), the points appended tile by tile to one LAZ (the streamed
-  writer of dense/point_cloud_io.py): memory does not grow with the block. The tiles' orthophoto gains are
-  put on one gauge from the images they share (harmonise_tile_gains).
+  writer of dense/point_cloud_io.py): memory does not grow with the block. Without the block's radiometry
+  (not solved, or BLOCK_RADIOMETRY off) each tile estimated its own and the merge puts the tiles' gains on one
+  gauge from the images they share (harmonise_tile_gains).
+
+Each reader is given only the parts' files it reads (contract.Split.merge_reads, a descriptor's "reads").
 
 Method, figures and limits: docs/dense.md "Large surveys: tiles and workers".
 """
@@ -45,6 +51,9 @@ MAX_TILES = 64
 # a tile's orthophoto covers its core and this many orthophoto cells around it (more than the blending's reach,
 # 1.5 x 2^levels cells: the seams and pyramids near the cut see the same cells on both sides)
 ORTHO_BAND_CELLS = 64
+# the orthophoto's radiometry solved once for the block (a third phase, dense/block_radiometry.py); False: each tile
+# estimates its own and the merge harmonises their gauges (the earlier way, kept for comparison: bench)
+BLOCK_RADIOMETRY = True
 
 
 def tile_count(tiles: int, n_images: int) -> int:
@@ -185,6 +194,12 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
                                 "prior": {names[i]: prior_of[names[i]] for i in need},
                                 "stems": {names[i]: stem[names[i]] for i in group}, "grid": grid})
     grid["depth_parts"] = len(depth_parts)
+    radiometry = []   # phase 1b: the block's orthophoto radiometry, once, from every depth part's observations
+    if BLOCK_RADIOMETRY and opts.ortho and opts.ortho_options.compensate:
+        radiometry = [{"phase": "radiometry", "after": list(range(len(depth_parts))),
+                       "reads": ["depth_summary.json", "radiometry_obs.npz"], "grid": grid}]
+    grid["first_tile"] = len(depth_parts) + len(radiometry)
+    rad_after = [len(depth_parts)] if radiometry else []
     parts = []
     for iy in range(len(ys) - 1):
         for ix in range(len(xs) - 1):
@@ -200,11 +215,14 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
                           "outer": [ix == 0, iy == 0, ix == len(xs) - 2, iy == len(ys) - 2],
                           "images": [names[i] for i in refs], "needs": [names[i] for i in needs],
                           "depth": {n: [owner[n], stem[n]] for n in with_depth},
-                          "after": sorted({owner[n] for n in with_depth}),
+                          "after": sorted({owner[n] for n in with_depth} | set(rad_after)),
+                          # of those parts' files: their summaries, these images' depth maps, the block's radiometry
+                          "reads": ["depth_summary.json", "radiometry.json"] + [
+                              f"depth/{stem[n]}{suffix}" for n in with_depth for suffix in (".npy", ".coarse.npy")],
                           "prior": {names[i]: prior_of[names[i]] for i in needs},
                           "neighbours": {names[i]: [names[j] for j in neighbours.get(i, [])] for i in refs},
                           "grid": grid})
-    return depth_parts + parts
+    return depth_parts + radiometry + parts
 
 
 def _pair_dict(pair, names) -> dict:
@@ -250,11 +268,13 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
         raise ProcessingError("a one-tile dense plan runs as the step itself, not as a part")
     if part.get("phase") == "depth":
         return _depth_part(workspace, opts, part, progress)
+    if part.get("phase") == "radiometry":
+        return _radiometry_part(workspace, opts, part, progress)
     grid = part["grid"]
     n_parts = grid["shape"][0] * grid["shape"][1]
     core, res, ores = part["core"], grid["resolution_m"], grid["ortho_resolution_m"]
     report = progress or (lambda stage, done, total: None)
-    label = f"tile {k - int(grid.get('depth_parts', 0)) + 1}/{n_parts}"
+    label = f"tile {k - int(grid.get('first_tile', grid.get('depth_parts', 0))) + 1}/{n_parts}"
     result = {"index": k, "tile": part["tile"], "core": core, "images": len(part["images"])}
     if len(part["images"]) < 2:
         result["skipped"] = "fewer than 2 images see the tile"
@@ -276,7 +296,16 @@ def part(workspace, options: dict, part: dict, progress, context: dict) -> None:
         if not (workspace.part_dir(STEP, owner) / "depth_summary.json").is_file():
             raise ProcessingError(f"{label}: depth part {owner} left no result (depth_summary.json missing): the "
                                   "depth parts run before the tiles")
+    # the block's orthophoto radiometry (the radiometry part among "after"), when it was solved
+    block_model = None
+    for j in part.get("after") or []:
+        f = workspace.part_dir(STEP, int(j)) / "radiometry.json"
+        if f.is_file():
+            from ..dense.block_radiometry import read_block_model
+
+            block_model = read_block_model(f)
     block = BlockDepth(
+        radiometry=block_model,
         prior_views=[ViewDepth(*[float(x) for x in part["prior"][im.name][:4]], int(part["prior"][im.name][4]))
                      for im in subset.images],
         sparse_source=grid.get("sparse_source", "oriented images"),
@@ -340,11 +369,34 @@ def _depth_part(workspace, opts, part: dict, progress) -> None:
     label = f"depth maps {k + 1}/{n}"
     report = progress or (lambda stage, done, total: None)
     t0 = time.perf_counter()
+    from ..dense.block_radiometry import OBS_FILE
+
+    observe = BLOCK_RADIOMETRY and opts.ortho and opts.ortho_options.compensate
     result = run_depth_maps(_oriented_path(workspace, opts), part["images"], part["sources"], part["prior"],
                             part["stems"], pdir / "depth", replace(opts, tiles=1),
-                            lambda stage, done, total: report(f"{label}: {stage}", done, total))
+                            lambda stage, done, total: report(f"{label}: {stage}", done, total),
+                            radiometry_obs=pdir / OBS_FILE if observe else None)
     result.update(index=k, phase="depth", group=part["group"], seconds=round(time.perf_counter() - t0, 3))
     (pdir / "depth_summary.json").write_text(json.dumps(result, indent=1))
+
+
+def _radiometry_part(workspace, opts, part: dict, progress) -> None:
+    """Phase 1b: the block's orthophoto radiometry (gains per image, vignetting per camera) solved once from the
+    depth parts' observations (``radiometry.json``; block_radiometry.py); every tile mosaics with it."""
+    from ..dense.block_radiometry import MODEL_FILE, OBS_FILE, solve_block
+
+    k = int(part["index"])
+    report = progress or (lambda stage, done, total: None)
+    report("orthophoto radiometry", 0, 1)
+    files = [workspace.part_dir(STEP, int(j)) / OBS_FILE for j in part.get("after") or []]
+    missing = [f for f in files if not f.is_file()]
+    if missing:
+        raise ProcessingError(f"orthophoto radiometry: depth part {missing[0].parent.name} left no "
+                              f"{OBS_FILE}: the depth parts run before it")
+    result = solve_block(files, vignetting=opts.ortho_options.compensate_vignetting)
+    result["index"] = k
+    (workspace.part_dir(STEP, k) / MODEL_FILE).write_text(json.dumps(result, indent=1))
+    report("orthophoto radiometry", 1, 1)
 
 
 def harmonise_tile_gains(tile_gains: list[dict]) -> tuple[np.ndarray, dict]:
@@ -424,7 +476,7 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     from ..dense import cog_writer, dsm_raster
     from ..dense.cog_writer import RGBA, geotiff_to_cog
     from ..dense.dsm_raster import RasterGrid
-    from ..dense.dsm_support import SUPPORT_NODATA
+    from ..dense.dsm_support import CAUSE_VALUES, SUPPORT_NODATA, cause_counts
     from ..dense.point_cloud_io import dense_cloud_header, dense_points, point_cloud_writer
     from .dense import DENSE_DIR, _check_height_bias, _options_dict
 
@@ -440,13 +492,18 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     epsg = g["epsg"]
     # phase 1 (depth maps, each image's once) and phase 2 (the tiles, fused from them)
     depth_results = []
+    block_rad = None
     for p in parts:
-        if p.get("phase") == "depth":
-            f = workspace.part_dir(STEP, p["index"]) / "depth_summary.json"
+        if p.get("phase") in ("depth", "radiometry"):
+            name = "depth_summary.json" if p["phase"] == "depth" else "radiometry.json"
+            f = workspace.part_dir(STEP, p["index"]) / name
             if not f.is_file():
                 raise ProcessingError(f"part {p['index']} of the dense step left no result ({f.name} missing)")
-            depth_results.append(json.loads(f.read_text()))
-    parts = [p for p in parts if p.get("phase") != "depth"]
+            if p["phase"] == "depth":
+                depth_results.append(json.loads(f.read_text()))
+            else:
+                block_rad = json.loads(f.read_text())
+    parts = [p for p in parts if p.get("phase") not in ("depth", "radiometry")]
     results = []
     for p in parts:
         f = workspace.part_dir(STEP, p["index"]) / "core_summary.json"
@@ -458,7 +515,7 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
         raise ProcessingError("no tile of the dense step gave a surface: " +
                               "; ".join(f"tile {r['index'] + 1}: {r.get('skipped')}" for r in results))
     layers = {"dsm": (1, "float32", dsm_raster.NODATA, dgrid, res), "dsm_filled_mask": (1, "uint8",
-              dsm_raster.MASK_NODATA, dgrid, res), "dsm_support": (1, "uint8", SUPPORT_NODATA, dgrid, res)}
+              dsm_raster.MASK_NODATA, dgrid, res), "dsm_support": (2, "uint8", SUPPORT_NODATA, dgrid, res)}
     if opts.ortho:
         layers["ortho"] = (4, "uint8", None, ogrid, ores)
     tmp = {name: out / f".{name}.merge.tif" for name in layers}
@@ -466,6 +523,7 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
     gain_factors, harmonised = harmonise_tile_gains(
         [((r.get("summary") or {}).get("ortho") or {}).get("log_gains") or {} for r in results])
     stats = {"measured": 0, "filled": 0, "coarse": 0, "ortho_covered": 0, "cnt_weight": 0.0}
+    causes: dict[str, int] = {}
     dsts = {}
     try:
         for name, (count, dt, nd, gr, r) in layers.items():
@@ -488,6 +546,9 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
                     stats["coarse"] += int(np.count_nonzero(a == dsm_raster.MASK_COARSE))
                 if name == "ortho":
                     stats["ortho_covered"] += int(np.count_nonzero(a[3] > 0))
+                if name == "dsm_support" and len(a) > 1:
+                    for k2, v in cause_counts(a[1]).items():
+                        causes[k2] = causes.get(k2, 0) + v
             del arrays
             report("merging tiles", n_done, len(parts))
         dsts["dsm"].set_band_description(1, "ellipsoidal height")
@@ -498,8 +559,9 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
         dsts["dsm_filled_mask"].update_tags(VALUES="0 measured, 2 measured at coarse resolution (coarse pass only), "
                                                    "1 filled (interpolated), 255 no data")
         dsts["dsm_support"].set_band_description(1, "views agreeing on the cell (0: interpolated, no support)")
+        dsts["dsm_support"].set_band_description(2, "cause: " + CAUSE_VALUES)
         dsts["dsm_support"].update_tags(VALUES="median number of views that agreed on the cell's points; 0 "
-                                               "interpolated (no measurement); 255 no data")
+                                               "interpolated (no measurement); 255 no data", CAUSES=CAUSE_VALUES)
         if "ortho" in dsts:
             dsts["ortho"].colorinterp = RGBA
             dsts["ortho"].update_tags(PRODUCER="georef dense step", RESOLUTION_M=f"{ores:g}")
@@ -541,6 +603,8 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
         for k, v in (d.get("timings_s") or {}).items():
             if k != "total":
                 timings[k] = round(timings.get(k, 0.0) + v, 3)
+    if block_rad and block_rad.get("seconds") is not None:
+        timings["radiometry_solve"] = block_rad["seconds"]
     timings["merge"] = round(time.perf_counter() - t0, 3)
     times_computed: dict[str, int] = {}
     for d in depth_results:
@@ -586,12 +650,19 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
                    "mean_views_per_point": round(n_views_sum / n_points, 3) if n_points else None},
         "dsm": {"width": dgrid.width, "height": dgrid.height, "measured_cells": measured, "filled_cells": filled,
                 "coarse_cells": coarse, "hole_fraction": round(filled / max(1, measured + filled + coarse), 5),
+                "cells_by_cause": causes,
                 "bounds": [dgrid.west, dgrid.north - dgrid.height * res, dgrid.west + dgrid.width * res,
                            dgrid.north]},
         "ortho": ({"resolution_m": ores, "width": ogrid.width, "height": ogrid.height,
                    "coverage_fraction": stats["ortho_covered"] / max(1, ogrid.width * ogrid.height),
-                   "radiometry": "estimated per tile (its images and margin), the tiles' gains harmonised on the "
-                                 "images they share", "tile_harmonisation": harmonised} if opts.ortho else None),
+                   "radiometry": ("the block's: one gain per image and one vignetting per camera, solved once from "
+                                  "the depth parts' observations and used by every tile"
+                                  if block_rad and block_rad.get("solved") else
+                                  "estimated per tile (its images and margin), the tiles' gains harmonised on the "
+                                  "images they share"),
+                   **({"block_radiometry": {k2: block_rad.get(k2) for k2 in ("summary", "observations", "seconds")}}
+                      if block_rad else {}),
+                   "tile_harmonisation": harmonised} if opts.ortho else None),
         "dsm_vertical_rmse_m": round(rmse, 4) if rmse is not None else None,
         "dsm_smoothing_radius_m": max(s.get("dsm_smoothing_radius_m") or 0.0 for s in sums),
         "dsm_vertical_rmse_source": "internal estimate: agreement of the views fused into each point (random "

@@ -143,12 +143,15 @@ GEOREF = StepSpec(
 
 # --------------------------------------------------------------------------------------------------- dense
 DENSE = StepSpec(
-    name="dense", title="Dense surface", version=3,
+    name="dense", title="Dense surface", version=4,
     description="Dense point cloud, DSM and orthophoto on the CPU (docs/dense.md).",
     function="georef_core.steps.dense:step_entry", depends_on=("georef",), heavy=True, site_data=("crs",),
     # spatial tiles that workers run in parallel (steps/dense_tiles.py; docs/dense.md "Large surveys")
     split=Split(plan="georef_core.steps.dense_tiles:plan", part="georef_core.steps.dense_tiles:part",
-                merge="georef_core.steps.dense_tiles:merge"),
+                merge="georef_core.steps.dense_tiles:merge",
+                # the merge reads the parts' summaries, the tiles' cores and the block's radiometry, not the depth maps
+                merge_reads=("depth_summary.json", "core_summary.json", "core_rasters.npz", "core_points.npz",
+                             "radiometry.json")),
     # the names and defaults of DenseOptions (steps/dense.py; tests/steps/test_step_contract.py holds them equal)
     options=(
         Option("max_image_size", "integer", 1600, "images are matched at most this large (longer side)",
@@ -191,7 +194,8 @@ DENSE = StepSpec(
         Output("dsm", "dense/dsm.tif", "surface model, cloud-optimised GeoTIFF", "image/tiff", tile="heights"),
         Output("dsm_filled_mask", "dense/dsm_filled_mask.tif", "DSM cells: 0 measured, 2 measured at coarse "
                "resolution, 1 interpolated, 255 no data", "image/tiff"),
-        Output("dsm_support", "dense/dsm_support.tif", "DSM cells: views agreeing (0: interpolated)", "image/tiff"),
+        Output("dsm_support", "dense/dsm_support.tif", "DSM cells: views agreeing (0: interpolated); band 2: why a "
+               "cell lacks a measurement (seen by 2+ images without a consistent depth, or not seen)", "image/tiff"),
         Output("ortho", "dense/ortho.tif", "orthophoto, cloud-optimised GeoTIFF", "image/tiff", tile="rgb"),
         Output("point_cloud", "dense/points.laz", "dense points", "application/vnd.laszip"),
         Output("summary", "dense/dense_summary.json", "the step summary", "application/json"),

@@ -108,6 +108,7 @@ def _patch_cells(sim, out):
     with rasterio.open(d / "dsm_support.tif") as ss:
         support = ss.read(1)
         assert ss.nodata == 255 and ss.dtypes[0] == "uint8" and ss.transform == T
+        assert ss.count == 2    # band 2: why a cell has or lacks a measurement (dsm_support.CAUSE_*)
     with rasterio.open(sim.out_dir / "truth" / "dsm.tif") as rs:
         ref = np.full(z.shape, np.nan)
         reproject(rs.read(1).astype(float), ref, src_transform=rs.transform, src_crs=rs.crs, dst_transform=T,
@@ -143,5 +144,14 @@ def test_uniform_pond_is_marked_unsupported(patched_run):
     assert interp.sum() > 0.3 * pond.sum()  # measured 0.51: nothing to match in its middle at any scale
     assert np.all(support[interp] == SUPPORT_NONE)
     assert np.all(support[pond & (mask != MASK_FILLED)] >= 2)
+    # and flagged for why: the images see the pond (it is in the middle of the block) but agree on no depth there
+    from georef_core.dense.dsm_support import CAUSE_FILLED_SEEN, cause_counts
+
+    import rasterio
+
+    with rasterio.open(out / "dense" / "dsm_support.tif") as ss:
+        causes = ss.read(2)
+    assert np.all(causes[interp] == CAUSE_FILLED_SEEN)
+    assert cause_counts(causes) == patched_run[2]["dsm"]["cells_by_cause"]
     # its surface is flat: the interpolation across it is close (not a claim of measurement)
     assert np.sqrt(np.nanmean(dz[interp] ** 2)) < 0.10  # measured 2.9 cm

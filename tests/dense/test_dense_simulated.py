@@ -111,6 +111,20 @@ def test_raster_files_are_cogs(dense_run):
         assert ss.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG" and ss.transform == dsm_transform
         support = ss.read(1)
     assert np.all((support == 255) == (mask == MASK_NODATA)) and np.all((support == 0) == (mask == MASK_FILLED))
+    # band 2: why (dsm_support.CAUSE_*): measured, coarse, interpolated or empty - seen by 2+ images or not
+    from georef_core.dense import dsm_support as S
+
+    with rasterio.open(d / "dsm_support.tif") as ss:
+        causes = ss.read(2)
+    assert np.all((causes == S.CAUSE_MEASURED) == (mask == MASK_MEASURED))
+    assert np.all(np.isin(causes[mask == MASK_FILLED], [S.CAUSE_FILLED_SEEN, S.CAUSE_FILLED_UNSEEN]))
+    assert np.all(np.isin(causes[mask == MASK_NODATA], [S.CAUSE_EMPTY_SEEN, S.CAUSE_EMPTY_UNSEEN]))
+    by = summary["dsm"]["cells_by_cause"]
+    print("cells by cause:", by)
+    assert by == S.cause_counts(causes) and sum(by.values()) == causes.size
+    # the block's interior is seen by many images: its holes are "seen, no consistent depth"; the grid's corners
+    # beyond every footprint are "unseen"
+    assert by["interpolated_seen"] > by["interpolated_unseen"] and by["no_data_unseen"] > 0
     assert np.all(support[mask == MASK_MEASURED] >= 2)
     assert np.all((dsm == NODATA) == (mask == MASK_NODATA))
     filled = np.count_nonzero(mask == MASK_FILLED)

@@ -7,6 +7,7 @@ functions (worker/pipeline.py plan_parts / run_part / merge_parts) in-process.""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -37,15 +38,58 @@ def tiled_run(dense_sim, dense_run, tmp_path_factory):
         return real(view, *a, **kw)
 
     depth_pass.pair_depth_map = counting
+    given = {}   # per reader (a part's index, "merge"): the parts' files the platform gives it, and all of them
     try:
         for p in parts:
-            pipeline.run_part("dense", dense_sim.out_dir, out, options, p, lambda s, d, t: calls.append(s), run)
+            if p.get("after"):   # as on the platform: a folder of its own with only the earlier files it reads
+                folder = _platform_folder(out, tmp_path_factory.mktemp(f"part{p['index']}"), p, given)
+                pipeline.run_part("dense", dense_sim.out_dir, folder, options, p, lambda s, d, t: calls.append(s),
+                                  run)
+                shutil.copytree(folder / "dense" / "parts" / f"{p['index']:04d}",
+                                out / "dense" / "parts" / f"{p['index']:04d}", dirs_exist_ok=True)
+            else:
+                pipeline.run_part("dense", dense_sim.out_dir, out, options, p, lambda s, d, t: calls.append(s), run)
     finally:
         depth_pass.pair_depth_map = real
+    # the block's orthophoto radiometry (the radiometry part's file; the merge removes the parts' folders)
+    rad = [p for p in parts if p["phase"] == "radiometry"]
+    block_rad = (json.loads((out / "dense" / "parts" / f"{rad[0]['index']:04d}" / "radiometry.json").read_text())
+                 if rad else None)
+    # the merge, too, in a folder with only the parts' files it declared it reads (specs: Split.merge_reads)
+    out = _platform_folder(out, tmp_path_factory.mktemp("merge"), None, given)
     summary = pipeline.merge_parts("dense", dense_sim.out_dir, out, options, parts, lambda *a: None, run)
+    summary["_block_radiometry"] = block_rad
+    summary["_given"] = given
     print("tiles:", [(t["images"], t["seconds"]) for t in summary["tiles"]["per_tile"]],
           "depth parts:", summary["tiles"]["per_depth_part"])
     return out, summary, parts, calls, matched
+
+
+def _platform_folder(src, dest, part, given):
+    """A copy of the run folder ``src`` as the worker materialises it for ``part`` (None: the merge): the other
+    files, and of the parts' files those worker.tasks._own_file_wanted gives it (the descriptor's "after" and
+    "reads", the Split's merge_reads); what it was given is counted in ``given``."""
+    from georef_core.steps.contract import part_after
+    from worker import tasks
+
+    run = {"own_files": True, "part_reads": part_after(part) if part else [],
+           "part_read_patterns": part.get("reads") if part else None}
+    n_all = n_given = 0
+    names = []
+    for f in sorted(src.rglob("*")):
+        rel = f.relative_to(src).as_posix()
+        if not f.is_file():
+            continue
+        if rel.startswith("dense/parts/"):
+            n_all += f.stat().st_size
+            if not tasks._own_file_wanted(rel, "dense", None if part is None else part["index"], run):
+                continue
+            n_given += f.stat().st_size
+            names.append(rel)
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(f, dest / rel)
+    given["merge" if part is None else part["index"]] = (n_given, n_all, names)
+    return dest
 
 
 def _read(path):
@@ -60,8 +104,12 @@ def test_each_depth_map_is_computed_once(tiled_run, dense_run):
     out, summary, parts, calls, matched = tiled_run
     depth = [p for p in parts if p["phase"] == "depth"]
     fuse = [p for p in parts if p["phase"] == "fuse"]
-    assert len(fuse) == 2 and len(depth) >= 1 and [p["phase"] for p in parts] == ["depth"] * len(depth) + ["fuse"] * 2
-    assert all(set(p["after"]) <= {d["index"] for d in depth} and p["after"] for p in fuse)
+    rad = [p for p in parts if p["phase"] == "radiometry"]
+    assert len(fuse) == 2 and len(depth) >= 1 and [p["phase"] for p in parts] == (["depth"] * len(depth) +
+                                                                                  ["radiometry"] + ["fuse"] * 2)
+    assert rad[0]["after"] == [d["index"] for d in depth]
+    assert all(set(p["after"]) <= {d["index"] for d in depth} | {rad[0]["index"]} and rad[0]["index"] in p["after"]
+               for p in fuse)
     one = dense_run[1]
     n_matched = one["n_images"] - len(one["pairs"]["images_without_partner"])
     # counted as it ran: every pair matched once (as many as the one run's), at full and at coarse size
@@ -123,12 +171,11 @@ def test_tiled_orthophoto_and_points(tiled_run, dense_sim, dense_run):
     offs = target_offsets(out / "dense" / "ortho.tif", read_targets(dense_sim.out_dir / "truth" / "targets.csv"))
     found = [o for o in offs if o.pattern_ok]
     assert len(found) >= len(offs) - 1 and len(found) >= 3
-    h = summary["ortho"]["tile_harmonisation"]       # the two tiles' gains put on one gauge
-    print("orthophoto gains across the tiles:", h)
-    assert h["shared_images"] > 0 and h["tiles_linked"] == 2
-    assert h["residual_rms_percent"] <= h["residual_rms_percent_before"]
+    print("orthophoto radiometry:", summary["ortho"]["radiometry"], summary["ortho"].get("block_radiometry"))
     res_o = summary["ortho"]["resolution_m"]
     assert max(o.offset_m for o in found) < 2.0 * res_o + 0.01   # at their place: within 2 ortho cells + 1 cm
+    by = summary["dsm"]["cells_by_cause"]        # the support raster's band 2, merged from the tiles' cores
+    assert by["measured"] == summary["dsm"]["measured_cells"] and by["interpolated_seen"] > 0
     with laspy.open(out / "dense" / "points.laz") as f:
         n = f.header.point_count
     assert n == summary["points"]["written"]
@@ -158,3 +205,64 @@ def test_tile_gains_are_harmonised_on_shared_images():
     rgba[3, 0] = 255                               # the second row: no data, left as it is
     out = _scale_colours(rgba, factors[0])
     assert out[0, 0, 0] == round(100 * np.exp(0.06)) and out[0, 1, 0] == 100 and out[3].tolist() == rgba[3].tolist()
+
+
+def test_block_radiometry_is_solved_once_for_every_tile(tiled_run, dense_sim):
+    """The orthophoto's gains and vignetting are solved once for the block (the radiometry part, from the depth
+    parts' observations) and every tile mosaics with them: the simulator's own per-image gains (3 % jitter) and
+    vignetting (12 % at the corners) recovered against truth/radiometry.json, and nothing left for the merge to
+    harmonise (no tile estimated gains of its own)."""
+    from georef_core.dense.block_radiometry import model_for_views
+
+    out, summary, parts = tiled_run[:3]
+    block = summary["_block_radiometry"]
+    assert block is not None and block["solved"], block
+    truth = json.loads((dense_sim.out_dir / "truth" / "radiometry.json").read_text())
+    names = sorted(block["images"])
+    assert set(names) == set(truth["gains"])
+    est = np.array([np.mean(block["images"][n][:3]) for n in names])
+    true = np.log([truth["gains"][n] for n in names])
+    true -= true.mean()                              # the block's gauge: mean log gain 0
+    err = 100 * (est - true)
+    print(f"block gains - truth: RMS {np.sqrt(np.mean(err ** 2)):.2f} %, max {np.abs(err).max():.2f} % "
+          f"(truth spread {100 * true.std():.2f} %); {block['observations']} observations, {block['seconds']} s")
+    assert np.abs(err).max() < 1.0 and np.sqrt(np.mean(err ** 2)) < 0.5
+
+    class _V:   # the model for views by name (the tiles' path)
+        def __init__(self, name):
+            self.name = name
+
+    model = model_for_views(block, [_V(n) for n in names])
+    rho = np.array([0.5, 0.8, 1.0])
+    a = truth["vignetting"]["a"]
+    true_v = 1 - a * rho ** 2                         # the simulator's (4:3 images, no cos^4 term here)
+    got = model.vignetting(int(model.camera_of_view[0]), rho).mean(axis=1)
+    print("vignetting at rho 0.5, 0.8, 1:", np.round(got, 4), "truth", np.round(true_v, 4))
+    assert np.all(np.abs(got - true_v) < 0.02)
+    o = summary["ortho"]
+    assert o["radiometry"].startswith("the block's") and o["block_radiometry"]["observations"] > 1000
+    assert o["tile_harmonisation"]["shared_images"] == 0      # the tiles published no gains of their own
+
+
+def test_readers_get_only_the_part_files_they_read(tiled_run):
+    """On the platform a reader of parts' files is given only those it declared (the merge: the Split's
+    merge_reads; a second-phase part: its descriptor's "reads"): the fixture ran every such reader in a folder
+    holding only those, so its success shows they suffice; here, that the depth maps stayed out of the merge and
+    of the radiometry part, and that a tile got only its own images' maps."""
+    from georef_core.steps.contract import get_spec
+
+    out, summary, parts = tiled_run[:3]
+    given = summary["_given"]
+    assert "depth_summary.json" in get_spec("dense").split.merge_reads
+    print({k: f"{g / 1e6:.2f} of {a / 1e6:.2f} MB" for k, (g, a, _) in given.items()})
+    maps = [n for n in given["merge"][2] if "/depth/" in n]
+    assert not maps and any(n.endswith("core_rasters.npz") for n in given["merge"][2])   # no depth map sent
+    rad = next(p for p in parts if p["phase"] == "radiometry")
+    assert not [n for n in given[rad["index"]][2] if "/depth/" in n]
+    assert sum(n.endswith("radiometry_obs.npz") for n in given[rad["index"]][2]) == len(rad["after"])
+    for p in parts:
+        if p["phase"] == "fuse":   # a tile: its images' and their neighbours' maps, the block's radiometry
+            got = {n.rsplit("/", 1)[-1] for n in given[p["index"]][2] if "/depth/" in n}
+            assert got == {f"{stem}{s}" for _, stem in p["depth"].values() for s in (".npy", ".coarse.npy")} & got
+            assert any(n.endswith("radiometry.json") for n in given[p["index"]][2])
+            assert not [n for n in given[p["index"]][2] if "core_" in n or "radiometry_obs" in n]
