@@ -2,8 +2,9 @@
 
 ``make install`` (after ``georef warmup``) and the Dockerfile run ``python -m georef_core.gnss.aot_build``.
 It compiles the kernels that the solve and the engine checks call from Python (the entry points of
-:data:`georef_core.warmup.STAGES`, groups "gnss" and "gnss-checks"), each for the argument types that
-numba's cache holds for it (production's: the warm-up reaches them through the public code paths), and
+:data:`georef_core.warmup.STAGES`, groups "gnss" and "gnss-checks"), each for the argument types the
+warm-up's public code paths call it with in the build's own process (production's; not whatever else
+numba's cache may hold from tests), and
 writes beside the module a JSON description: the source files and their digest, and each exported
 variant's argument types (what kernel_loader checks before it calls one). The kernels they call are
 compiled into them. Nothing here changes a kernel: the same Python functions, compiled by the same numba,
@@ -104,18 +105,6 @@ def entry_points() -> list[str]:
     return [n for st in warmup.STAGES if st.group in GROUPS for n in st.entry_points]
 
 
-def production_signatures(dispatchers: dict) -> dict:
-    """Argument types numba's cache holds for each entry point (after the warm-up), by qualified name."""
-    out = {}
-    for name, d in dispatchers.items():
-        try:
-            index = d._cache._cache_file._load_index()
-        except Exception:   # noqa: BLE001
-            index = {}
-        out[name] = [key[0] for key in index]
-    return out
-
-
 def build(target_cpu: str = "host", verbose: bool = True) -> dict:
     """Compile the module; returns {"exports": n, "skipped": [...], "seconds": s}. Raises on failure."""
     import importlib
@@ -133,12 +122,11 @@ def build(target_cpu: str = "host", verbose: bool = True) -> dict:
     for n in names:
         mod, _, fn = n.rpartition(".")
         dispatchers[n] = getattr(importlib.import_module(mod), fn)
-    sigs = production_signatures(dispatchers)
-    if any(not s for s in sigs.values()):
-        if verbose:
-            print("  the numba cache lacks some kernels: running the warm-up first", flush=True)
-        warmup.warm_up(GROUPS)
-        sigs = production_signatures(dispatchers)
+    # the argument types production reaches: those the warm-up's public code paths call in this process
+    # (loaded from numba's cache, or compiled where missing), not every type the cache holds - a test or a
+    # bench may have compiled other variants into it, which would make the module depend on what ran before
+    warmup.warm_up(GROUPS)
+    sigs = {n: list(d.signatures) for n, d in dispatchers.items()}
     kernel_modules = sorted({m for m, _, _ in (n.rpartition(".") for n in warmup.discover_dispatchers())
                              if m.startswith("georef_core.gnss.")})
     files = source_files(kernel_modules)
