@@ -99,8 +99,10 @@ def _georef_command(tree: Path | None = None) -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "georef_core.cli.main"]
 
 
-# one fresh process of ours, instrumented: where the fixed cost goes (seconds since the previous mark)
-_BREAKDOWN_PROCESS = """
+# one fresh process of ours, instrumented: where the fixed cost goes (seconds since the previous mark); its
+# first and last parts are shared by the numba path and the ahead-of-time path (``loads``: the numba cache
+# loads timed, None where numba is not used)
+_PROBE_HEAD = """
 import json, sys, time
 t0 = time.process_time()
 marks = {}
@@ -110,7 +112,35 @@ def mark(name):
 sys.path.insert(0, sys.argv[1])
 import numpy
 mark("import numpy")
-import numba
+"""
+
+_PROBE_SOLVE = """
+solving = []
+_solve_files = gnss_solve.solve_files
+def solve_files(*a, **k):
+    t, w = time.process_time(), time.perf_counter()
+    sol = _solve_files(*a, **k)
+    solving.append((time.process_time() - t, time.perf_counter() - w, dict(sol.timings_s)))
+    return sol
+gnss_solve.solve_files = solve_files
+conf, out, rover, base, navs = sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
+opts = read_rtklib_conf(conf).options
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)
+first = time.process_time() - t0
+t = time.process_time()
+gnss_solve.run_gnss_solve(rover, base, navs, out, opts)    # again: the same work without first-call costs
+total = time.process_time() - t
+solve_s, solve_wall, timings = solving[-1]
+if loads is not None:
+    marks["kernel loads"] = sum(loads)
+marks["reading"] = solve_s * min(1.0, timings.get("load", 0.0) / solve_wall)   # its share of the wall time
+marks["solve"] = solve_s - marks["reading"]
+marks["writing"] = total - solve_s
+marks["other first-call costs"] = first - total - sum(loads or ())
+marks["kernels loaded"] = len(loads or ())
+"""
+
+_BREAKDOWN_PROCESS = _PROBE_HEAD + """import numba
 mark("import numba")
 from georef_core.cli import gnss_commands
 from georef_core.gnss.rtk_options import read_rtklib_conf
@@ -134,43 +164,11 @@ def load_overload(self, sig, ctx):
     finally:
         loads.append(time.process_time() - t)
 caching.Cache.load_overload = load_overload
-solving = []
-_solve_files = gnss_solve.solve_files
-def solve_files(*a, **k):
-    t, w = time.process_time(), time.perf_counter()
-    sol = _solve_files(*a, **k)
-    solving.append((time.process_time() - t, time.perf_counter() - w, dict(sol.timings_s)))
-    return sol
-gnss_solve.solve_files = solve_files
-conf, out, rover, base, navs = sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
-opts = read_rtklib_conf(conf).options
-gnss_solve.run_gnss_solve(rover, base, navs, out, opts)
-first = time.process_time() - t0
-t = time.process_time()
-gnss_solve.run_gnss_solve(rover, base, navs, out, opts)    # again: the same work without first-call costs
-total = time.process_time() - t
-solve_s, solve_wall, timings = solving[-1]
-marks["kernel loads"] = sum(loads)
-marks["reading"] = solve_s * min(1.0, timings.get("load", 0.0) / solve_wall)   # its share of the wall time
-marks["solve"] = solve_s - marks["reading"]
-marks["writing"] = total - solve_s
-marks["other first-call costs"] = first - total - sum(loads)
-marks["kernels loaded"] = len(loads)
-print(json.dumps(marks))
+""" + _PROBE_SOLVE + """print(json.dumps(marks))
 """
 
 # the same with the ahead-of-time kernels (kernel_loader.prefer_aot): numba is not imported
-_BREAKDOWN_AOT_PROCESS = """
-import json, sys, time
-t0 = time.process_time()
-marks = {}
-def mark(name):
-    global t0
-    t = time.process_time(); marks[name] = t - t0; t0 = t
-sys.path.insert(0, sys.argv[1])
-import numpy
-mark("import numpy")
-from georef_core.gnss import kernel_loader
+_BREAKDOWN_AOT_PROCESS = _PROBE_HEAD + """from georef_core.gnss import kernel_loader
 if not kernel_loader.prefer_aot():
     raise SystemExit("the ahead-of-time kernels are not usable: " + kernel_loader.status()["why"])
 mark("load the ahead-of-time kernels")
@@ -178,28 +176,8 @@ from georef_core.cli import gnss_commands
 from georef_core.gnss.rtk_options import read_rtklib_conf
 from georef_core.steps import gnss_solve
 mark("import georef_core")
-solving = []
-_solve_files = gnss_solve.solve_files
-def solve_files(*a, **k):
-    t, w = time.process_time(), time.perf_counter()
-    sol = _solve_files(*a, **k)
-    solving.append((time.process_time() - t, time.perf_counter() - w, dict(sol.timings_s)))
-    return sol
-gnss_solve.solve_files = solve_files
-conf, out, rover, base, navs = sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5], sys.argv[6:]
-opts = read_rtklib_conf(conf).options
-gnss_solve.run_gnss_solve(rover, base, navs, out, opts)
-first = time.process_time() - t0
-t = time.process_time()
-gnss_solve.run_gnss_solve(rover, base, navs, out, opts)    # again: the same work without first-call costs
-total = time.process_time() - t
-solve_s, solve_wall, timings = solving[-1]
-marks["reading"] = solve_s * min(1.0, timings.get("load", 0.0) / solve_wall)
-marks["solve"] = solve_s - marks["reading"]
-marks["writing"] = total - solve_s
-marks["other first-call costs"] = first - total
-marks["kernels loaded"] = 0
-if "numba" in sys.modules or kernel_loader.status()["mode"] != "aot":
+loads = None
+""" + _PROBE_SOLVE + """if "numba" in sys.modules or kernel_loader.status()["mode"] != "aot":
     raise SystemExit("numba was imported: " + kernel_loader.status()["why"])
 print(json.dumps(marks))
 """
