@@ -64,27 +64,42 @@ class Server:
 
 
 class SlowClients:
-    """``n`` connections that each send a request's headers (announcing ``body_len`` bytes) and then the
-    body one byte every ``interval_s`` seconds, from one background thread; each one's answer (status
-    line) and when it came are recorded."""
+    """``n`` connections that each send a request's head and then trickle one byte every ``interval_s``
+    seconds, and ``n_idle`` that send nothing, from one background thread; each one's answer (status line,
+    b"closed" or b"reset") and when it came (seconds after all connected) are recorded.
+
+    By default the head is a request's headers announcing ``body_len`` bytes and the trickle its body, never
+    the last byte (a slow body); ``slow_headers`` makes clients that never finish their headers."""
 
     def __init__(self, port: int, n: int, method: str = "POST", path: str = "/api/v1/auth/login",
-                 body_len: int = 64, interval_s: float = 1.0, headers: dict | None = None):
-        self.port, self.n, self.interval_s = port, n, interval_s
+                 body_len: int = 64, interval_s: float = 1.0, headers: dict | None = None, n_idle: int = 0,
+                 head: bytes | None = None, trickle: bytes = b" ", trickle_max: int | None = None):
+        self.port, self.n, self.n_idle, self.interval_s = port, n, n_idle, interval_s
         extra = "".join(f"{k}: {v}\r\n" for k, v in (headers or {}).items())
-        self.head = (f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Type: application/json\r\n"
-                     f"Content-Length: {body_len}\r\n{extra}\r\n").encode()
-        self.body_len = body_len
+        self.head = head if head is not None else (
+            f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {body_len}\r\n{extra}\r\n").encode()
+        self.trickle = trickle
+        # never the last byte of a body: the request stays incomplete
+        self.trickle_max = (body_len - 1) if head is None else trickle_max
         self.socks: list[socket.socket] = []
         self.answers: dict[int, tuple[float, bytes]] = {}
         self.connected_at = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
+    @classmethod
+    def slow_headers(cls, port: int, n: int, n_idle: int = 0, interval_s: float = 0.5) -> "SlowClients":
+        """Clients that send a request line and then one header byte every ``interval_s`` (never the end of
+        the headers), and ``n_idle`` silent ones."""
+        return cls(port, n, interval_s=interval_s, n_idle=n_idle,
+                   head=b"GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Slow: ", trickle=b"a")
+
     def start(self) -> "SlowClients":
-        for _ in range(self.n):
+        for i in range(self.n + self.n_idle):
             s = socket.create_connection(("127.0.0.1", self.port), timeout=5)
-            s.sendall(self.head)
+            if i < self.n:
+                s.sendall(self.head)
             s.setblocking(False)
             self.socks.append(s)
         self.connected_at = time.monotonic()
@@ -109,9 +124,9 @@ class SlowClients:
                 except OSError:
                     self.answers[i] = (time.monotonic() - self.connected_at, b"reset")
                     continue
-                if sent < self.body_len - 1:      # never the last byte: the body stays incomplete
+                if i < self.n and (self.trickle_max is None or sent < self.trickle_max):
                     try:
-                        s.send(b" ")
+                        s.send(self.trickle)
                     except OSError:
                         pass
             sent += 1
@@ -119,7 +134,7 @@ class SlowClients:
 
     def wait_answers(self, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and len(self.answers) < self.n:
+        while time.monotonic() < deadline and len(self.answers) < len(self.socks):
             time.sleep(0.1)
 
     def close(self) -> None:

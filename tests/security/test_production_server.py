@@ -19,7 +19,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 
 import httpx
@@ -105,58 +104,6 @@ def production(tmp_path_factory):
         close_platform(p)
 
 
-class SlowHeaders:
-    """``n`` connections that send a request line and then one header byte every ``interval_s`` (never the
-    end of the headers), and ``n_idle`` that send nothing; the first bytes each one gets back."""
-
-    def __init__(self, port: int, n: int, n_idle: int, interval_s: float = 0.5):
-        self.socks = []
-        for i in range(n + n_idle):
-            s = socket.create_connection(("127.0.0.1", port), timeout=5)
-            if i < n:
-                s.sendall(b"GET /api/v1/health HTTP/1.1\r\nHost: x\r\nX-Slow: ")
-            s.setblocking(False)
-            self.socks.append(s)
-        self.n = n
-        self.t0 = time.monotonic()
-        self.answers: dict[int, tuple[float, bytes]] = {}
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(interval_s,), daemon=True)
-        self._thread.start()
-
-    def _run(self, interval_s: float) -> None:
-        while not self._stop.is_set():
-            for i, s in enumerate(self.socks):
-                if i in self.answers:
-                    continue
-                try:
-                    data = s.recv(4096)
-                    self.answers[i] = (time.monotonic() - self.t0, data.split(b"\r\n", 1)[0] if data else b"closed")
-                    continue
-                except BlockingIOError:
-                    pass
-                except OSError:
-                    self.answers[i] = (time.monotonic() - self.t0, b"reset")
-                    continue
-                if i < self.n:
-                    try:
-                        s.send(b"a")
-                    except OSError:
-                        pass
-            self._stop.wait(interval_s)
-
-    def wait(self, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and len(self.answers) < len(self.socks):
-            time.sleep(0.1)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        for s in self.socks:
-            s.close()
-
-
 def test_slow_headers_and_bodies_without_nginx(production):
     url, tokens = production["url"], production["tokens"]
     reader = httpx.Client(base_url=url, timeout=5, headers={"Authorization": f"Bearer {tokens['reader']}"})
@@ -164,7 +111,7 @@ def test_slow_headers_and_bodies_without_nginx(production):
     # the process's first write loads the CRS database (a second on a busy machine): warm it up first
     assert writer.post("/api/v1/sites", json={"name": "warm", "crs": "EPSG:32653"}).status_code == 201
     assert reader.get(f"/api/v1/sites/{production['site']}").status_code == 200
-    heads = SlowHeaders(production["port"], N_SLOW, N_SLOW // 4)
+    heads = SlowClients.slow_headers(production["port"], N_SLOW, N_SLOW // 4).start()
     bodies = SlowClients(production["port"], N_SLOW, interval_s=0.5).start()
     try:
         time.sleep(0.5)
@@ -178,8 +125,8 @@ def test_slow_headers_and_bodies_without_nginx(production):
                 times.append((what, r.status_code, round(time.monotonic() - t0, 3)))
                 assert r.status_code in (200, 201), (what, r.status_code, r.text[:300])
         assert max(t for _, _, t in times) < 1.0, times
-        assert time.monotonic() - heads.t0 < HEADER_TIMEOUT_S, "the checks must run while the slow clients wait"
-        heads.wait(HEADER_TIMEOUT_S + 5)
+        assert time.monotonic() - heads.connected_at < HEADER_TIMEOUT_S, "the checks must run while the slow clients wait"
+        heads.wait_answers(HEADER_TIMEOUT_S + 5)
         bodies.wait_answers(3 + 5)
         # every slow or silent connection was answered 408 and closed by the server, at its deadline
         assert len(heads.answers) == len(heads.socks)
