@@ -18,6 +18,7 @@ from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
 from .fix_continuity import refuse_jumping_fixes
+from .fix_precision import refuse_imprecise_fixes
 from .fix_witness import PhaseArbiter, refuse_contradicted_fixes
 from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .gnss_time import gps_time_s_to_datetime
@@ -399,6 +400,11 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
         out = run_pass(True, None)
         if opts.reverse_witness:
             out, conflicts = refuse_contradicted_fixes(out, run_pass(False, known, 3, " (witness)"), arbiter)
+    # a fix whose position the geometry leaves decimetre-level is not output as fixed (fix_precision.py)
+    out, n_imprecise = refuse_imprecise_fixes(out, opts.fix_max_sigma_m)
+    if n_imprecise:
+        notes.append(f"{n_imprecise} fixed epoch(s) output as float: their fixed position's formal 3-D sigma "
+                     f"exceeds {opts.fix_max_sigma_m:g} m (too few satellites for a centimetre position)")
     timings["filter"] = _time.perf_counter() - t0
     clock_g = spp.clock_bias_m[:, CLOCK_COLUMN["G"]] if spp.clock_bias_m.size else np.zeros(len(data.time_s))
     clock_g = np.where(spp.valid, clock_g, np.nan)

@@ -39,6 +39,7 @@ class RtkOptions:
     partial_ar_max_drop: int = 4
     partial_ar_max_float_sigma_m: float = 0.3   # subsets are searched only once the float position is this good
     min_ambiguities_to_fix: int = 4
+    fix_max_sigma_m: float = 0.05      # a fixed epoch whose 3-D sigma exceeds this is output as float (0 = off; fix_precision.py)
     outage_reset_epochs: int = 5
     max_age_s: float = 30.0
     base_interpolation: bool = True    # interpolate base observations between base epochs (else the nearest base epoch)
@@ -99,6 +100,8 @@ class RtkOptions:
             raise ValueError("elevation mask must be within [0, 90) degrees")
         if not 1e-6 <= self.hold_variance_cyc2 <= 100:
             raise ValueError(f"hold variance {self.hold_variance_cyc2} cycles^2: expected 1e-6 to 100")
+        if not 0 <= self.fix_max_sigma_m <= 10:
+            raise ValueError(f"fix precision limit {self.fix_max_sigma_m} m: expected 0 (off) to 10 m")
         if not 0 <= self.slip_tdcp_threshold_m <= 1:
             raise ValueError(f"time-differenced slip threshold {self.slip_tdcp_threshold_m} m: expected 0 (off) to 1 m")
 

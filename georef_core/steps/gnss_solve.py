@@ -194,7 +194,8 @@ def _run_survey_gnss(survey_dir, out_dir, options: dict | None, progress, found)
     kw = dict(mode=mode, n_bands=n_bands, filter_direction=opt.get("direction", opt.get("filter", "combined")))
     for key, field, cast in (("elmask", "elevation_mask_deg", float), ("ar", "ar_mode", str),
                              ("ratio", "ratio_threshold", float), ("tdcp_slips", "slip_tdcp_threshold_m", float),
-                             ("hold_variance", "hold_variance_cyc2", float)):
+                             ("hold_variance", "hold_variance_cyc2", float),
+                             ("fix_max_sigma", "fix_max_sigma_m", float)):
         if opt.get(key) is not None:      # types checked by the spec (get_spec("gnss").validate above)
             kw[field] = cast(opt[key])
     if opt.get("reverse_witness") is not None:

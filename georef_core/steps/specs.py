@@ -37,6 +37,8 @@ GNSS = StepSpec(
                choices=("falling", "rising"), advanced=True),
         Option("reverse_witness", "boolean", True, "forward/backward: the other pass refutes contradicted fixes",
                advanced=True),
+        Option("fix_max_sigma", "number", 0.05, "a fix whose position's formal 3-D sigma exceeds this is output "
+               "as float (0: off)", minimum=0.0, maximum=10.0, unit="m", advanced=True),
         Option("base_position_ecef_m", "numbers", None, "base antenna position (default: the base file's header "
                                                        "or an averaged single-point solution)", length=3, unit="m"),
         Option("known_start_ecef_m", "numbers", None, "surveyed take-off antenna position (known-start mode)",

@@ -1,7 +1,8 @@
 """Our PPK engine against RTKLIB demo5 (rtklibexplorer EX 2.5.1) on the real datasets of shared/data/gnss,
 each with demo5's exact configuration read through --rtklib-conf. See docs/gnss.md for the figures.
 
-Criteria (issue #2): fix rate at least demo5's; on epochs both fix, median horizontal difference <= 3 mm,
+Criteria (issue #2): fix rate at least demo5's (on the static baselines, demo5's fixes within 5 cm of
+the static truth; ours: none beyond); on epochs both fix, median horizontal difference <= 3 mm,
 vertical <= 8 mm, none beyond 5 cm. Where demo5 itself fixes wrongly (car, L1 only: checked against
 demo5's own dual-frequency solution), our L1 solution is compared with that dual-frequency quasi-truth; on the
 u-blox walk (no truth) every fixed epoch of both engines is judged by the carrier phase."""
@@ -53,6 +54,10 @@ def _judged(case, ours, ref, tmp_path):
     return judge_fixes(data, opts, ours, ref, **reverse), data, opts
 
 
+def _ecef(pos) -> np.ndarray:
+    return geodetic_to_ecef_m(np.radians(pos.lat_deg), np.radians(pos.lon_deg), pos.height_m)
+
+
 def _ids(cases):
     return [f"{c[0].split('_')[0]}-{c[1]}" for c in cases]
 
@@ -67,7 +72,14 @@ UBLOX = [c for c in CASES if c[0] == "ublox_m8p_20181004_walk"]
 def test_static_baselines_match_demo5(case, tmp_path):
     _, ours, ref = _run(case, tmp_path)
     c = compare_pos(ours, ref)
-    assert c.fix_rate >= c.fix_rate_ref, c.as_dict()
+    # the rovers are static: the median of demo5's fixes is the truth to a few mm. Fix rates count right
+    # fixes (within 5 cm of it): on GEONET's last epochs (five satellites) demo5 flags a position 10.7 cm
+    # off as fixed, which ours outputs as float (its 3-D sigma is 17 cm: gnss/fix_precision.py)
+    truth = np.median(_ecef(ref)[ref.status == 1], axis=0)
+    ref_right = (ref.status == 1) & (np.linalg.norm(_ecef(ref) - truth, axis=1) <= 0.05)
+    ours_err = np.linalg.norm(_ecef(ours) - truth, axis=1)
+    assert not np.any((ours.status == 1) & (ours_err > 0.05)), ours_err[ours.status == 1].max()
+    assert c.fix_rate >= ref_right.mean(), (c.as_dict(), ref_right.mean())
     assert c.n_both_fixed >= 0.9 * len(ref.time_s) * c.fix_rate_ref
     assert c.median_horizontal_m <= 0.003 and c.median_vertical_m <= 0.008, c.as_dict()
     assert c.n_beyond_5cm == 0, c.as_dict()
