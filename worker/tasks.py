@@ -86,6 +86,10 @@ def _send(settings, db, storage, messages: list[tuple]) -> None:
             send_part(settings, m[1], m[2], m[3])
         elif m[0] == "webhook":
             send_webhook(settings, m[1])
+        elif m[0] == "design-change":
+            from backend.core.queue import send_design_change
+
+            send_design_change(settings, m[1])
         elif m[0] == "run-finished":
             _send(settings, db, storage, on_run_finished(db, storage, m[1]))
             shutil.rmtree(settings.resolved_work_dir() / "runs" / m[1], ignore_errors=True)
@@ -534,6 +538,51 @@ def deliver_webhook(self, delivery_id: str) -> str:
                        settings.webhook_allowed_networks)
     except TransientDeliveryError as exc:
         raise self.retry(exc=exc, countdown=min(3600, 2 ** self.request.retries * 5))
+
+
+def execute_design_change(job_id: str) -> str:
+    """Claim and compute one change between two surveys of a design (backend/services/design_changes); the
+    result or the error (a file named, as for steps) stored on the job. Raises only transient errors."""
+    from georef_core.errors import GeorefError
+
+    from backend.services import design_changes
+
+    settings, db, storage = _env()
+    claimed = design_changes.claim(db, job_id, worker_id())
+    if claimed is None:
+        return "skipped: not queued"
+    inputs, attempt = claimed
+    work = settings.resolved_work_dir() / "design-changes"
+    try:
+        result = design_changes.compute(storage, inputs, work)
+    except TRANSIENT:
+        with db.session() as s:   # back to the queue for the retry
+            from sqlalchemy import update
+
+            from backend.models import DesignChangeJob
+
+            s.execute(update(DesignChangeJob).where(DesignChangeJob.id == job_id, DesignChangeJob.attempt == attempt)
+                      .values(state="queued"))
+        raise
+    except (GeorefError, ValueError, OSError) as exc:
+        design_changes.finish(db, job_id, attempt, error=_relative(str(exc), work))
+        return "failed"
+    except Exception as exc:   # a bug: recorded on the job, with its type
+        log.exception("design change %s failed", job_id)
+        design_changes.finish(db, job_id, attempt, error=f"internal error ({type(exc).__name__}: {exc})")
+        return "failed"
+    return "done" if design_changes.finish(db, job_id, attempt, result=result) else "lost"
+
+
+@shared_task(name="georef.design_change", bind=True, acks_late=True, max_retries=None)
+def design_change(self, job_id: str) -> str:
+    settings = get_settings()
+    try:
+        return execute_design_change(job_id)
+    except TRANSIENT as exc:
+        if self.request.retries >= settings.task_max_retries:
+            return "gave up (the next design-progress request re-sends it)"
+        raise self.retry(exc=exc, countdown=min(60, 2 ** self.request.retries))
 
 
 @shared_task(name="georef.expire_uploads", acks_late=True)

@@ -16,6 +16,7 @@ log = logging.getLogger("georef.queue")
 RUN_STEP_TASK = "georef.run_step"
 RUN_PART_TASK = "georef.run_part"
 DELIVER_WEBHOOK_TASK = "georef.deliver_webhook"
+DESIGN_CHANGE_TASK = "georef.design_change"
 
 _apps: dict[str, Celery] = {}
 _lock = threading.Lock()
@@ -86,4 +87,15 @@ def send_webhook(settings: Settings, delivery_id: str, countdown: float = 0.0) -
         return True
     except Exception as exc:
         log.warning("could not send webhook delivery %s (%s); it will be re-sent", delivery_id, exc)
+        return False
+
+
+def send_design_change(settings: Settings, job_id: str) -> bool:
+    """The change between two surveys of a design (services/design_changes), to the default queue."""
+    try:
+        client_for(settings).send_task(DESIGN_CHANGE_TASK, args=[job_id], queue=settings.default_queue, retry=True,
+                                       retry_policy={"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5})
+        return True
+    except Exception as exc:   # broker down: the job stays queued; the next design-progress request re-sends it
+        log.warning("could not send design change %s (%s); it will be re-sent", job_id, exc)
         return False

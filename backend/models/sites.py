@@ -7,7 +7,7 @@ from datetime import datetime
 from sqlalchemy import JSON, BigInteger, Boolean, ForeignKey, String, Text, UniqueConstraint
 from sqlalchemy.orm import Mapped, mapped_column
 
-from .base import Base, IdMixin, TimestampMixin, VersionMixin
+from .base import Base, IdMixin, TimestampMixin, VersionMixin, utcnow
 
 ROLES = ("viewer", "editor", "admin")
 
@@ -105,3 +105,25 @@ class SiteCalibration(TimestampMixin, VersionMixin, Base):
     def id(self) -> str:
         """The ETag's stem (core/etag.version_etag): not the site's own."""
         return "c" + self.site_id
+
+
+class DesignChangeJob(IdMixin, Base):
+    """The change between two surveys of the site's design, surface against surface (georef_core.design.
+    surface_change), computed by a worker (worker/tasks.design_change) and stored here: one row per pair of
+    design results and area (``key``: their files' checksums, the area, the common-bias figure). queued ->
+    running -> succeeded (``result``) | failed (``error``). services/design_changes.py; docs/design.md."""
+
+    __tablename__ = "design_changes"
+    site_id: Mapped[str] = mapped_column(ForeignKey("sites.id", ondelete="CASCADE"), index=True)
+    key: Mapped[str] = mapped_column(String(64), unique=True)
+    earlier_run_id: Mapped[str] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    later_run_id: Mapped[str] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"), index=True)
+    inputs: Mapped[dict] = mapped_column(JSON)          # the files (checksums), the area and the common bias
+    state: Mapped[str] = mapped_column(String(16), default="queued")   # queued | running | succeeded | failed
+    attempt: Mapped[int] = mapped_column(default=0)
+    worker: Mapped[str | None] = mapped_column(String(200), default=None)
+    result: Mapped[dict | None] = mapped_column(JSON, default=None)
+    error: Mapped[str | None] = mapped_column(Text, default=None)
+    queued_at: Mapped[datetime] = mapped_column(default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column(default=None)
+    finished_at: Mapped[datetime | None] = mapped_column(default=None)

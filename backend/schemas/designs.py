@@ -64,3 +64,10 @@ class DesignChange(BaseModel):
                                                "design; surfaces only")
     area_m2: float | None = Field(default=None, description="area compared in both surveys (surfaces only)")
     notes: list[str] = Field(default_factory=list)
+    surfaces_state: str | None = Field(default=None, description="the surface-against-surface comparison, computed by "
+                                       "a worker and stored: queued | running (the figures are the totals' until it "
+                                       "is done) | succeeded | failed (notes say why); null: not possible (a file "
+                                       "missing)")
+    uncertainty: dict | None = Field(default=None, description="surfaces only: each quantity's 1 sigma with its "
+                                     "components (DSM noise of each survey, the surveys' relative vertical bias, "
+                                     "resampling, unmeasured area) and the bias model (common_bias_m and its source)")

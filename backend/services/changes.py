@@ -4,6 +4,7 @@ settings, GNSS fix rate, check-point RMSE, stockpile volumes), and the notificat
 from __future__ import annotations
 
 import json
+import logging
 
 from sqlalchemy import select
 
@@ -11,6 +12,8 @@ from ..models import Run, RunOutput, VolumeMeasurement
 from ..storage import Storage, blob_key
 from . import result_files
 from .webhooks import enqueue_event
+
+log = logging.getLogger("georef.changes")
 
 
 def _json_output(s, storage: Storage, run_id: str, paths) -> dict | None:
@@ -93,4 +96,13 @@ def on_run_finished(db, storage: Storage, run_id: str) -> list[tuple]:
                    "state": run.state, "error": run.error, "trigger": run.trigger,
                    "finished_at": run.finished_at.isoformat() if run.finished_at else None,
                    "changes": run.changes if run.state == "succeeded" else None}
-        return enqueue_event(s, run.site_id, f"run.{run.state}", payload)
+        msgs = enqueue_event(s, run.site_id, f"run.{run.state}", payload)
+        if run.state == "succeeded":   # the site's design changes between surveys, computed ahead of the first view
+            from .design_changes import queue_after_run
+
+            try:
+                with s.begin_nested():
+                    msgs += queue_after_run(s, run)
+            except Exception as exc:   # never an error for the run: design-progress queues them when asked
+                log.warning("design changes of run %s not queued: %s", run.id, exc)
+        return msgs

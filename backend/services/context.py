@@ -70,6 +70,10 @@ class Ctx:
                 send_part(self.settings, msg[1], msg[2], msg[3])
             elif msg[0] == "webhook":
                 send_webhook(self.settings, msg[1])
+            elif msg[0] == "design-change":
+                from ..core.queue import send_design_change
+
+                send_design_change(self.settings, msg[1])
 
     @property
     def user(self) -> User:

@@ -266,95 +266,50 @@ def add_changes(entries: list[dict]) -> None:
         e["since_previous"] = change_between(entries[i - 1], e, entries[0]) if i else None
 
 
-_SURFACE_CHANGES: dict = {}    # (earlier and later difference and cut_fill checksums, area) -> surface_change result
-_SURFACE_CHANGES_MAX = 256
+def add_surface_changes(ctx: Ctx, site_id: str, entries: list[dict], area: dict | None, database=None) -> bool:
+    """Each ``since_previous`` (add_changes: from the totals) replaced by the stored surface-against-surface change
+    (services/design_changes: computed by a worker, never here) where both runs kept their difference rasters;
+    queued when there is none yet (its ``surfaces_state`` says queued or running, the figures stay the totals'
+    until it is done). Returns whether any is still pending."""
+    from . import design_changes
 
-
-def _design_files(ctx: Ctx, run_id: str) -> dict[str, str]:
-    from ..models import RunOutput
-
-    rows = ctx.db.execute(select(RunOutput.path, RunOutput.sha256).where(
-        RunOutput.run_id == run_id, RunOutput.path.in_(("design/difference.tif", "design/cut_fill.json")))).all()
-    return {path.rsplit("/", 1)[1]: sha for path, sha in rows}
-
-
-def surface_change_between(ctx: Ctx, prev: dict, cur: dict, area: dict) -> dict:
-    """``cur`` against ``prev`` surface against surface (georef_core.design.surface_change): the two runs' design
-    difference rasters compared cell by cell inside the design area, with each survey's stated accuracy (its
-    cut_fill.json). Cached in this process by the files' checksums and the area. Raises ValueError (why) when a
-    run lacks the files."""
-    import json
-
-    from georef_core.design.surface_change import SurveyAccuracy, surface_change
-    from georef_core.errors import InputFileError, ProcessingError
-
-    from ..storage import blob_key
-    from .runs import canonical_json
-
-    files = {}
-    for which, e in (("earlier", prev), ("later", cur)):
-        f = _design_files(ctx, e["run_id"])
-        if set(f) != {"difference.tif", "cut_fill.json"}:
-            raise ValueError(f"run {e['run_number']} of {e['survey_name']!r} kept no design difference raster")
-        files[which] = f
-    key = (files["earlier"]["difference.tif"], files["earlier"]["cut_fill.json"], files["later"]["difference.tif"],
-           files["later"]["cut_fill.json"], hashlib.sha256(canonical_json(area).encode()).hexdigest())
-    hit = _SURFACE_CHANGES.get(key)
-    if hit is not None:
-        return hit
-    with tempfile.TemporaryDirectory(dir=_tmp_dir(ctx)) as tmp:
-        acc, diff = {}, {}
-        for which in ("earlier", "later"):
-            f = files[which]
-            e = prev if which == "earlier" else cur
-            where = f"run {e['run_number']} of {e['survey_name']!r}: design/cut_fill.json"
-            try:
-                doc = json.loads(ctx.storage.read_bytes(blob_key(f["cut_fill.json"])))
-            except (OSError, ValueError) as exc:
-                raise ValueError(f"{where}: unreadable ({exc})") from None
-            try:
-                acc[which] = SurveyAccuracy.from_cut_fill(doc, where)
-            except ProcessingError as exc:
-                raise ValueError(str(exc)) from None
-            diff[which] = Path(tmp) / f"{which}.tif"
-            ctx.storage.fetch(blob_key(f["difference.tif"]), diff[which], link_ok=True)
-        try:
-            out = surface_change(diff["earlier"], diff["later"], area, acc["earlier"], acc["later"])
-        except (InputFileError, ProcessingError) as exc:
-            raise ValueError(str(exc)) from None
-    if len(_SURFACE_CHANGES) >= _SURFACE_CHANGES_MAX:
-        _SURFACE_CHANGES.pop(next(iter(_SURFACE_CHANGES)))
-    _SURFACE_CHANGES[key] = out
-    return out
-
-
-def add_surface_changes(ctx: Ctx, entries: list[dict], area: dict | None) -> None:
-    """Each ``since_previous`` (add_changes: from the totals) replaced by the surface-against-surface change where
-    both runs kept their difference rasters; otherwise it stays the totals' with a note saying why."""
+    pairs = {}
     for i in range(1, len(entries)):
         c = entries[i].get("since_previous")
         if c is None or not area:
             continue
         try:
-            sc = surface_change_between(ctx, entries[i - 1], entries[i], area)
+            pairs[i] = design_changes.pair_inputs(ctx.db, entries[i - 1], entries[i], area)
         except ValueError as exc:
             c["notes"].append(f"computed from the two results' cut/fill totals, not surface against surface: {exc}")
+    jobs = design_changes.request_changes(ctx, site_id, list(pairs.values()), database)
+    pending = False
+    for i, inputs in pairs.items():
+        c, job = entries[i]["since_previous"], jobs[design_changes.job_key(inputs)]
+        c["surfaces_state"] = job["state"]
+        if job["state"] in ("queued", "running"):
+            pending = True
+            c["notes"].append("surface against surface: being computed by a worker; these figures are the totals' "
+                              "until it is done")
             continue
+        if job["state"] == "failed" or not job["result"]:
+            c["notes"].append(f"computed from the two results' cut/fill totals, not surface against surface: "
+                              f"{job['error'] or 'no result'}")
+            continue
+        sc = job["result"]
         c.update(method="surfaces", cut_moved_m3=sc["cut_moved_m3"], fill_placed_m3=sc["fill_placed_m3"],
                  net_change_m3=sc["net_change_m3"], sigma_m3=dict(sc["sigma_m3"]),
                  cut_below_design_m3=sc["cut_below_design_m3"], fill_above_design_m3=sc["fill_above_design_m3"],
-                 area_m2=sc["area_m2"])
+                 area_m2=sc["area_m2"], uncertainty={**sc["uncertainty"], "model": sc.get("accuracy")})
         c["notes"].extend(sc["notes"])
+    return pending
 
 
-def design_progress(ctx: Ctx, site_id: str) -> dict:
-    """The site's design against every survey's latest successful run that compared with it (this file,
-    surface and area), oldest flight first: cut, fill, net with their 1-sigma, on-grade share. Surveys
-    without such a run are listed with the reason."""
-    d = _get(ctx, site_id, "viewer")
-    key = design_key(d)
-    surveys = list(ctx.db.scalars(select(Survey).where(Survey.site_id == site_id)))
-    rows = ctx.db.execute(
+def progress_entries(s, site_id: str, key: str) -> tuple[list[dict], list[dict]]:
+    """(entries, not compared) of design_progress: each survey's latest successful run whose design step compared
+    with the design ``key``, oldest flight first; the others with the reason. No permission check (the caller's)."""
+    surveys = list(s.scalars(select(Survey).where(Survey.site_id == site_id)))
+    rows = s.execute(
         select(Run.id, Run.number, Run.survey_id, Run.finished_at, RunStep.summary, RunStep.state)
         .join(RunStep, RunStep.run_id == Run.id)
         .where(Run.site_id == site_id, Run.state == "succeeded", RunStep.name == "design",
@@ -388,8 +343,18 @@ def design_progress(ctx: Ctx, site_id: str) -> dict:
     order = lambda e: (e["flown_at"] is None, e["flown_at"].isoformat() if e["flown_at"] else "", e["survey_name"])  # noqa: E731
     entries.sort(key=order)
     missing.sort(key=order)
+    return entries, missing
+
+
+def design_progress(ctx: Ctx, site_id: str, database=None) -> dict:
+    """The site's design against every survey's latest successful run that compared with it (this file,
+    surface and area), oldest flight first: cut, fill, net with their 1-sigma, on-grade share. Surveys
+    without such a run are listed with the reason."""
+    d = _get(ctx, site_id, "viewer")
+    key = design_key(d)
+    entries, missing = progress_entries(ctx.db, site_id, key)
     add_changes(entries)
-    add_surface_changes(ctx, entries, d.area)
+    pending = add_surface_changes(ctx, site_id, entries, d.area, database)
     return {"design": {"filename": d.filename, "format": d.format, "sha256": d.sha256, "key": key,
                        "surface_name": d.surface_name, "area_m2": _area_m2(d.area), "tolerance_m": d.tolerance_m},
             "conventions": "cut_m3: surveyed above design (to remove); fill_m3: below design (to place); net_m3 = "
@@ -397,4 +362,4 @@ def design_progress(ctx: Ctx, site_id: str) -> dict:
                            "since_previous: cut_moved_m3 (ground lowered: removed) and fill_placed_m3 (raised: placed) since the "
                            "survey before, surface against surface inside the design area (method), "
                            "remaining_cut_m3 / remaining_fill_m3 still to do",
-            "surveys": entries, "not_compared": missing}
+            "surveys": entries, "not_compared": missing, "changes_pending": pending}

@@ -58,3 +58,22 @@ describe("design progress", () => {
     expect(() => areaFromGeoJson(JSON.stringify({ type: "Polygon", coordinates: [bowtie] }))).toThrow(/crosses itself/);
   });
 });
+
+describe("design change computed by a worker", () => {
+  it("says pending while the worker computes it, done once stored, and from the totals otherwise", async () => {
+    const { changeState } = await import("../src/lib/designProgress");
+    expect(changeState({ surfaces_state: "queued", method: "totals" })).toMatchObject({ pending: true });
+    expect(changeState({ surfaces_state: "running", method: "totals" }).label).toMatch(/^pending/);
+    expect(changeState({ surfaces_state: "succeeded", method: "surfaces" })).toEqual({ label: "done: surface against surface", pending: false });
+    expect(changeState({ surfaces_state: "failed", method: "totals" }).label).toMatch(/failed/);
+    expect(changeState({ surfaces_state: null, method: "totals" })).toEqual({ label: "from the totals", pending: false });
+  });
+
+  it("asks again while the API answers 202 (changes_pending), backing off from 3 s to 60 s, and stops", async () => {
+    const { progressPollDelayMs } = await import("../src/lib/designProgress");
+    expect(progressPollDelayMs({ changes_pending: false }, 0)).toBeNull();
+    expect(progressPollDelayMs(null, 0)).toBeNull();
+    expect([0, 1, 2, 3, 4, 5, 9].map((n) => progressPollDelayMs({ changes_pending: true }, n))).toEqual([3000, 6000, 12000, 24000, 48000, 60000, 60000]);
+    expect(progressPollDelayMs({ changes_pending: true }, 40)).toBeNull();
+  });
+});

@@ -199,9 +199,25 @@ def test_design_step_and_progress_over_two_surveys(world, worker_here, tmp_path)
     # whole area falls in it), the rest is transparent
     assert 0.01 < (alpha > 0).mean() < 0.076
 
+    # the change between the surveys is computed by a worker, not in the request: queued, 202 with the totals' figures
+    prog = viewer.get(f"/api/v1/sites/{site}/design-progress")
+    assert prog.status_code == 202, prog.text
+    pend = prog.json()["surveys"][1]["since_previous"]
+    assert pend["surfaces_state"] == "queued" and pend["method"] == "totals" and prog.json()["changes_pending"]
+    from backend.models import DesignChangeJob
+
+    with world["p"].db().session(read_only=True) as s:
+        jobs = list(s.scalars(select(DesignChangeJob).where(DesignChangeJob.site_id == site)))
+    assert len(jobs) == 1 and jobs[0].state == "queued" and jobs[0].later_run_id == run2
+    assert viewer.get(f"/api/v1/sites/{site}/design-progress").status_code == 202   # asked again: no second job
+    with world["p"].db().session(read_only=True) as s:
+        assert len(list(s.scalars(select(DesignChangeJob).where(DesignChangeJob.site_id == site)))) == 1
+    assert worker_here.execute_design_change(jobs[0].id) == "done"
+    assert worker_here.execute_design_change(jobs[0].id) == "skipped: not queued"   # a duplicate message
     prog = viewer.get(f"/api/v1/sites/{site}/design-progress")
     assert prog.status_code == 200, prog.text
     doc = prog.json()
+    assert doc["changes_pending"] is False
     assert [e["survey_name"] for e in doc["surveys"]] == ["May flight", "June flight"] and doc["not_compared"] == []
     may, june = doc["surveys"]
     cut1, cut2, fill = scenes.cut_volume(), scenes.cone_volume(low_bump["radius"], low_bump["h"]), scenes.fill_volume()
@@ -224,6 +240,11 @@ def test_design_step_and_progress_over_two_surveys(world, worker_here, tmp_path)
     assert abs(ch["remaining_cut_m3"] - cut2) < 0.001 * cut2 and 0 < ch["sigma_m3"]["cut_moved_m3"] < 20
     # surface against surface (the two runs' difference rasters, cell by cell), not from the two totals
     assert ch["method"] == "surfaces" and ch["cut_below_design_m3"] < 0.01 and ch["notes"] == [], ch
+    # both surveys tied to the same control point (POINTS_CSV: one, 2 cm): their bias is common, clipped to the 2 cm
+    # vertical RMSE each states, and cancels in the change
+    model = ch["uncertainty"]["model"]
+    assert ch["surfaces_state"] == "succeeded" and model["common_bias_m"] == 0.02 and model["relative_bias_m"] == 0
+    assert "same 1 control point" in model["common_bias_source"], model
     assert abs(ch["area_m2"] - scenes.area_m2()) < 0.01 * scenes.area_m2()
 
     # an identical run reuses the result; a new tolerance computes it again (and keeps the design key)

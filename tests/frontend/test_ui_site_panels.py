@@ -208,3 +208,46 @@ def test_the_gis_panel_gives_wmts_and_xyz_urls_with_a_tile_token(ui):
     assert "Add WMS/WMTS Layer" in text and "XYZ Tiles" in text
     assert unlabelled_controls(ui) == []
     assert ui.errors == []
+
+
+def _with_change(state: str, cut_moved: float, pending: bool) -> dict:
+    """PROGRESS with a second, earlier survey and the change since it: queued (the totals' figures) or done."""
+    may = {**PROGRESS["surveys"][0], "survey_id": "s-may", "survey_name": "May flight", "flown_at": "2024-05-20T09:00:00Z",
+           "run_id": "r-may", "cut_m3": 37.7, "net_m3": 27.47}
+    change = {"previous_survey_id": "s-may", "previous_survey_name": "May flight", "days": 35.0,
+              "cut_moved_m3": cut_moved, "fill_placed_m3": 0.0, "net_change_m3": -cut_moved,
+              "sigma_m3": {"cut_moved_m3": 1.5, "fill_placed_m3": 0.9, "net_change_m3": 2.0},
+              "remaining_cut_m3": 25.31, "remaining_fill_m3": 10.23, "done_share": {"cut_m3": 0.33, "fill_m3": 0.0},
+              "method": "surfaces" if state == "succeeded" else "totals", "surfaces_state": state,
+              "notes": ["surface against surface: being computed by a worker"] if pending else []}
+    june = {**PROGRESS["surveys"][0], "since_previous": change}
+    return {**PROGRESS, "surveys": [{**may, "since_previous": None}, june], "changes_pending": pending}
+
+
+def test_the_change_between_surveys_shows_pending_then_done_by_itself(ui, monkeypatch):
+    """design-progress answers 202 while a worker computes the change (figures from the totals), then 200 with the
+    stored result: the page shows pending, asks again on its own (no request waits on the computation) and shows
+    the result."""
+    answers = [(202, _with_change("queued", 12.39, True), {"Retry-After": "5"}),
+               (200, _with_change("succeeded", 14.58, False), {})]
+    inner = _api
+
+    def fake(path, method, query):
+        if path == f"/sites/{SITE}/design-progress":
+            return answers.pop(0) if len(answers) > 1 else answers[0]
+        return inner(path, method, query)
+
+    monkeypatch.setitem(globals(), "_api", fake)
+    ui.goto(f"/#/sites/{SITE}")
+    table = ui.get_by_test_id("design-change")
+    table.locator("[data-testid=change-state][data-state=queued]").wait_for()
+    row = table.locator("tbody tr", has_text="Demo flight").inner_text()
+    assert "pending" in row and "+12.4 ± 1.5" in row, row
+    assert "updates by itself" in table.inner_text()
+    table.locator("[data-testid=change-state][data-state=succeeded]").wait_for(timeout=15000)
+    row = table.locator("tbody tr", has_text="Demo flight").inner_text()
+    assert "done: surface against surface" in row and "+14.6 ± 1.5" in row, row
+    assert "updates by itself" not in table.inner_text()
+    asked = [c for c in ui.calls if c[1] == f"/sites/{SITE}/design-progress"]
+    assert len(asked) == 2, asked   # asked again once (no more once done: vitest designProgress progressPollDelayMs)
+    assert ui.errors == []

@@ -78,6 +78,11 @@ def get_design_file(site_id: str, ctx: CtxDep, request: Request):
 
 
 @router.get("/sites/{site_id}/design-progress",
-            summary="Cut, fill, net (+- 1 sigma) and on-grade share to the site's design over its surveys")
+            summary="Cut, fill, net (+- 1 sigma) and on-grade share to the site's design over its surveys; 202 while "
+                    "a change between surveys is still being computed by a worker (the figures are then the totals')",
+            responses={202: {"description": "a change between surveys is queued or running: ask again"}})
 def design_progress(site_id: str, ctx: CtxDep, request: Request):
-    return json_response(request, designs.design_progress(ctx, site_id))
+    doc = designs.design_progress(ctx, site_id, request.app.state.database)
+    if doc["changes_pending"]:
+        return json_response(request, doc, 202, headers={"Retry-After": "5"})
+    return json_response(request, doc)

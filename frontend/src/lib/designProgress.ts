@@ -73,6 +73,9 @@ export interface DesignChange {
   fill_above_design_m3?: number | null;
   area_m2?: number | null;
   notes: string[];
+  /** the surface-against-surface comparison, computed by a worker and stored (queued / running: the figures are the
+   * totals' until it is done; null: not possible, a file missing) */
+  surfaces_state?: "queued" | "running" | "succeeded" | "failed" | null;
 }
 
 export interface DesignProgress {
@@ -80,6 +83,8 @@ export interface DesignProgress {
   conventions: string;
   surveys: ProgressEntry[];
   not_compared: { survey_id: string; survey_name: string; flown_at: string | null; reason: string }[];
+  /** a change between surveys is still being computed by a worker (the API answered 202): ask again later */
+  changes_pending?: boolean;
 }
 
 /** Design files the server reads (georef_core.design): LandXML, DXF (3DFACE / polyface mesh), GeoTIFF. */
@@ -175,4 +180,27 @@ export function formatChange(v: number | null | undefined, sigma?: number | null
   const digits = Math.abs(v) >= 100 ? 0 : 1;
   const s = `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(digits)}`;
   return sigma !== null && sigma !== undefined && Number.isFinite(sigma) ? `${s} ± ${sigma.toFixed(digits)}` : s;
+}
+
+/** A change's comparison in words: pending while a worker computes it surface against surface (the figures shown
+ * meanwhile are the totals'), done, or from the totals (failed, or a file missing). */
+export function changeState(c: Pick<DesignChange, "surfaces_state" | "method">): { label: string; pending: boolean } {
+  switch (c.surfaces_state) {
+    case "queued":
+    case "running":
+      return { label: "pending: being computed surface against surface (figures from the totals meanwhile)", pending: true };
+    case "succeeded":
+      return { label: "done: surface against surface", pending: false };
+    case "failed":
+      return { label: "from the totals: the surface comparison failed", pending: false };
+    default:
+      return { label: c.method === "surfaces" ? "done: surface against surface" : "from the totals", pending: false };
+  }
+}
+
+/** How long to wait before asking design-progress again while a change is being computed (the API answered 202):
+ * 3 s, doubling, at most 60 s; null when nothing is pending or after `maxPolls` asks (about half an hour). */
+export function progressPollDelayMs(p: Pick<DesignProgress, "changes_pending"> | null | undefined, polls: number, maxPolls = 40): number | null {
+  if (!p || !p.changes_pending || polls >= maxPolls) return null;
+  return Math.min(3000 * 2 ** Math.max(polls, 0), 60000);
 }

@@ -3,7 +3,7 @@
  * with PATCH and If-Match), and per survey cut, fill, net ± 1σ and the on-grade share
  * (GET /sites/{id}/design-progress) as a table and a chart of net ± 1σ over time. */
 
-import { useState } from "preact/hooks";
+import { useEffect, useState } from "preact/hooks";
 import { api, ApiError } from "../api/client";
 import { LineChart } from "../components/LineChart";
 import { ErrorBox, Field, Loading, Note } from "../components/ui";
@@ -11,11 +11,13 @@ import { useLoad } from "../hooks";
 import {
   areaFromExtent,
   areaFromGeoJson,
+  changeState,
   DESIGN_FILE_ACCEPT,
   formatChange,
   formatShare,
   netSeriesPoints,
   parseToleranceCm,
+  progressPollDelayMs,
   type DesignProgress,
   type SiteDesign,
 } from "../lib/designProgress";
@@ -45,6 +47,22 @@ export function DesignPanel({ siteId, canEdit }: { siteId: string; canEdit: bool
     design.reload();
     progress.reload();
   };
+  // a change between surveys being computed by a worker (202): ask again later, never waiting on a request
+  const [polls, setPolls] = useState(0);
+  useEffect(() => {
+    if (progress.loading) return;
+    const ms = progressPollDelayMs(progress.data, polls);
+    if (ms === null) {
+      if (polls && !progress.data?.changes_pending) setPolls(0);
+      return;
+    }
+    const id = setTimeout(() => {
+      setPolls((n) => n + 1);
+      progress.reload();
+    }, ms);
+    return () => clearTimeout(id);
+    // eslint-disable-next-line react-hooks/exhaustive-deps
+  }, [progress.data, progress.loading, polls]);
   if (design.error) return <ErrorBox error={design.error} title="The design could not be read" />;
   if (!design.data) return <Loading what="the design" />;
   const d = design.data.design;
@@ -236,7 +254,8 @@ function ChangeTable({ p }: { p: DesignProgress }) {
   return (
     <div class="table-wrap">
       <table class="data compact" data-testid="design-change">
-        <caption>Since the previous survey (m³, ± 1σ; surface against surface inside the design area) and what remains to the design</caption>
+        <caption>Since the previous survey (m³, ± 1σ; surface against surface inside the design area) and what remains to the design
+          {p.changes_pending ? <span class="block small muted" role="status">A change is being computed by a worker: this table updates by itself.</span> : null}</caption>
         <thead>
           <tr>
             <th scope="col">Survey</th>
@@ -247,11 +266,13 @@ function ChangeTable({ p }: { p: DesignProgress }) {
             <th scope="col" class="num">Cut remaining</th>
             <th scope="col" class="num">Fill remaining</th>
             <th scope="col" class="num">Done since first (cut / fill)</th>
+            <th scope="col">Comparison</th>
           </tr>
         </thead>
         <tbody>
           {rows.map((e) => {
             const c = e.since_previous!;
+            const st = changeState(c);
             return (
               <tr key={e.survey_id}>
                 <th scope="row">{e.survey_name}</th>
@@ -263,6 +284,7 @@ function ChangeTable({ p }: { p: DesignProgress }) {
                 <td class="num">{formatVolumeNumber(c.remaining_cut_m3)}</td>
                 <td class="num">{formatVolumeNumber(c.remaining_fill_m3)}</td>
                 <td class="num">{formatShare(c.done_share.cut_m3)} / {formatShare(c.done_share.fill_m3)}</td>
+                <td class={`small ${st.pending ? "muted" : ""}`} data-testid="change-state" data-state={c.surfaces_state ?? "none"}>{st.label}</td>
               </tr>
             );
           })}
