@@ -49,6 +49,9 @@ def register(sub) -> None:
     p.add_argument("--hold-variance", type=float, metavar="CYC2",
                    help="fix-and-hold: variance of the held ambiguities, cycles^2 (default 0.1 as demo5; "
                         "0.001 as RTKLIB 2.4.3)")
+    p.add_argument("--fix-max-sigma", type=float, metavar="M",
+                   help="a fix whose position's formal 3-D sigma exceeds this is output as float, m (default "
+                        "0.05; 0 = off; docs/gnss.md)")
     p.add_argument("--events", help="camera trigger times: a CSV (column gps_time_s) or a DJI Timestamp.MRK; "
                                     "default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
@@ -126,6 +129,8 @@ def cmd_solve(args) -> int:
     from ..steps.gnss_solve import run_gnss_solve
 
     opts, notes = options_from_args(args)
+    if args.fix_max_sigma is not None:
+        changes["fix_max_sigma_m"] = args.fix_max_sigma
     for n in notes:
         print(f"georef: warning: {n}", file=sys.stderr)
     if not aot:

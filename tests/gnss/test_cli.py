@@ -119,6 +119,7 @@ def test_known_start_requires_position(tmp_path, capsys):
 @pytest.mark.parametrize("flag,field,values,bad,message", [
     ("--tdcp-slips", "slip_tdcp_threshold_m", ("0", "0.08"), "-1", "slip threshold"),   # 0 turns the check off
     ("--hold-variance", "hold_variance_cyc2", ("0.001",), "0", "hold variance"),        # 0: a hold never met
+    ("--fix-max-sigma", "fix_max_sigma_m", ("0", "0.1"), "-0.1", "fix precision limit"),  # 0 turns it off
 ])
 def test_engine_option_flags(tmp_path, capsys, monkeypatch, flag, field, values, bad, message):
     """The flag reaches the engine's options (seen by a spy on the CLI's option builder, the solve then
