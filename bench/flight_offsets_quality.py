@@ -10,11 +10,18 @@ and the same block flown as one all-float flight (before the rule: no offsets at
 over a surveyed base). Prints the ANEES of the camera centres and of 12 check points over the surveys, and the
 ratio to the default's.
 
+Float stretches (`--stretches N`): the same block flown as one flight, lines 1 and 3 RTK fixed (a common offset
+drawn from N(0, 1 / 1 / 1.5 cm) plus 4 mm noise, stated 4 mm), lines 2 and 4 two separate RTK-float stretches stated
+to 6 / 6 / 10 cm, each with its own bias (90 % of that variance) plus 10 % independent noise. Adjusted with one
+offset for all float exposures of the flight (before) and one per stretch (flight_offset_groups), each with one GNSS
+variance factor and with a factor per quality group (fixed / not fixed: gnss_variance_group). Seeds 0-3 were looked
+at while writing it; the figures quoted are of seeds from `--first-seed` (100) on.
+
 Modes: the two-flight blocks of tests/adjustment/test_flight_offset_modes.py, offsets drawn from their prior
 (3.5 cm per flight and axis), 200 surveys each: camera-centre ANEES (similarity) and z-score RMS of lever arm and
 delay (gcp), offsets modelled or not.
 
-    python bench/flight_offsets_quality.py [--surveys 8]
+    python bench/flight_offsets_quality.py [--surveys 8] [--stretches 16 --first-seed 100 --only-stretches]
 """
 
 from __future__ import annotations
@@ -60,6 +67,40 @@ def one_float_flight(seed: int, rule: bool, rng) -> tuple[float, float]:
             anees(p.points_enu_m[checks] - truth["P"][checks], np.array([res.point_cov_enu_m2[int(c)] for c in checks])))
 
 
+def two_stretch_case(seed: int, per_stretch: bool, vce_groups: bool, n_control: int = 0) -> tuple[float, float, float]:
+    """One flight (docstring: float stretches); ANEES cameras, ANEES check points, ANEES of the float cameras."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 77]))
+    prob, truth, checks = two_flight_block(seed, np.zeros((2, 3)), n_control, per_line=8, n_points=500)
+    n = len(prob.gnss_camera)
+    line = np.arange(n) // 8
+    fl = (line == 1) | (line == 3)
+    prob.antenna_enu_m[~fl] += rng.normal(0, DEFAULT_SIGMA_ENU_M)
+    for ln in (1, 3):
+        m = line == ln
+        prob.antenna_enu_m[m] += rng.normal(0, np.sqrt(COMMON_SHARE) * FLOAT_SIGMA_ENU_M) + \
+            rng.normal(0, np.sqrt(1 - COMMON_SHARE) * FLOAT_SIGMA_ENU_M, (int(m.sum()), 3))
+    prob.antenna_cov_enu_m2[fl] = np.diag(FLOAT_SIGMA_ENU_M ** 2)
+    sig = np.sqrt(np.einsum("kii->ki", prob.antenna_cov_enu_m2))
+    names = [f"DJI_{k:04d}.JPG" for k in range(n)]
+    ex = {nm: (0, 2 if f else 1, sg, 2.0 * k) for k, (nm, f, sg) in enumerate(zip(names, fl, sig))}
+    if per_stretch:
+        group_of, rows = flight_offset_groups(ex, DEFAULT_SIGMA_ENU_M)
+        prob.gnss_flight = np.array([group_of[nm] for nm in names])
+        own = [r["sigma_enu_m"] for r in rows]
+    else:     # the rule until now: one offset for the flight's fixed exposures, one for all its others
+        prob.gnss_flight = fl.astype(int)
+        own = [np.maximum(DEFAULT_SIGMA_ENU_M, np.median(sig[g], axis=0)) for g in (~fl, fl)]
+    prob.flight_offset_prior_cov_m2 = flight_offset_prior_cov(len(own), 0.0, own)
+    prob.gnss_variance_group = fl.astype(int) if vce_groups else None
+    res = adjust(prob, BundleOptions(free_intrinsics=free_mask("brown"), estimate_lever_arm=False,
+                                     estimate_delay=False, cov_points=tuple(int(c) for c in checks)))
+    p = res.problem
+    cc = res.camera_cov[:, 3:, 3:]
+    e = p.centre_enu_m - truth["C"]
+    return (anees(e, cc), anees(p.points_enu_m[checks] - truth["P"][checks],
+                                np.array([res.point_cov_enu_m2[int(c)] for c in checks])), anees(e[fl], cc[fl]))
+
+
 def _line(name, old, new):
     o, n = np.array(old), np.array(new)
     print(f"  {name}: ANEES cameras / check points: before the rule {o[:, 0].mean():.2f} (median "
@@ -71,10 +112,33 @@ def _line(name, old, new):
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--surveys", type=int, default=8)
+    ap.add_argument("--stretches", type=int, default=0, help="surveys of the two-float-stretch case")
+    ap.add_argument("--first-seed", type=int, default=100)
+    ap.add_argument("--only-stretches", action="store_true")
     a = ap.parse_args()
     t0 = time.perf_counter()
+    if a.stretches:
+        cases = {"one offset for all float, one variance factor (before)": (False, False),
+                 "one offset per stretch, one variance factor": (True, False),
+                 "one offset for all float, a factor per quality": (False, True),
+                 "one offset per stretch, a factor per quality": (True, True)}
+        out = {k: [] for k in cases}
+        for s in range(a.first_seed, a.first_seed + a.stretches):
+            for k, (ps, vg) in cases.items():
+                out[k].append(two_stretch_case(s, ps, vg))
+            print(f"stretch survey {s} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        print(f"two float stretches in one flight, seeds {a.first_seed}-{a.first_seed + a.stretches - 1}, 0 GCP: "
+              "ANEES cameras (median) / check points / float cameras")
+        ref = np.array(out[next(iter(cases))])
+        for k, v in out.items():
+            v = np.array(v)
+            print(f"  {k}: {v[:, 0].mean():.2f} ({np.median(v[:, 0]):.2f}) / {v[:, 1].mean():.2f} / "
+                  f"{v[:, 2].mean():.2f}; ratio to before {v[:, 0].mean() / ref[:, 0].mean():.2f} / "
+                  f"{v[:, 1].mean() / ref[:, 1].mean():.2f}")
+        if a.only_stretches:
+            return 0
     rng = np.random.default_rng(7)
-    res = {k: [] for k in ("0_old", "0_new", "1_old", "1_new", "one_old", "one_new")}
+    res = {k: [] for k in ("0_old", "0_new", "1_old", "1_new", "one_old", "one_new", "0_vce", "1_vce")}
     for s in range(a.surveys):
         fixed = rng.normal(0, DEFAULT_SIGMA_ENU_M)
         bias = rng.normal(0, np.sqrt(COMMON_SHARE) * FLOAT_SIGMA_ENU_M)
@@ -83,6 +147,9 @@ def main() -> int:
             for rule in (False, True):
                 r = float_flight_case(s, rule, n_control, float_bias_m=bias, float_white_m=white, fixed_offset_m=fixed)
                 res[f"{n_control}_{'new' if rule else 'old'}"].append((r["anees_cameras"], r["anees_checks"]))
+            r = float_flight_case(s, True, n_control, float_bias_m=bias, float_white_m=white, fixed_offset_m=fixed,
+                                  vce_groups=True)
+            res[f"{n_control}_vce"].append((r["anees_cameras"], r["anees_checks"]))
         seed_rng = np.random.default_rng(900 + s)
         for rule in (False, True):
             res[f"one_{'new' if rule else 'old'}"].append(one_float_flight(s, rule, np.random.default_rng(seed_rng.integers(1 << 30))))
@@ -90,6 +157,8 @@ def main() -> int:
     print(f"prior from the RTK quality, {a.surveys} surveys (fixed flight + float flight):")
     _line("0 GCP", res["0_old"], res["0_new"])
     _line("1 GCP", res["1_old"], res["1_new"])
+    _line("0 GCP, the rule + a GNSS variance factor per quality (vs the rule alone)", res["0_new"], res["0_vce"])
+    _line("1 GCP, the rule + a GNSS variance factor per quality (vs the rule alone)", res["1_new"], res["1_vce"])
     _line("one all-float flight, 0 GCP", res["one_old"], res["one_new"])
 
     # modes similarity and gcp (no bundle adjustment: cheap)

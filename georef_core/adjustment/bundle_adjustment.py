@@ -102,6 +102,9 @@ class BundleProblem:
     gnss_flight: np.ndarray | None = None
     flight_offset_prior_cov_m2: np.ndarray | None = None
     flight_offset_enu_m: np.ndarray | None = None
+    # variance-component groups of the GNSS positions (K,) (e.g. 0 RTK fixed, 1 float / single): each group gets
+    # its own a-posteriori variance factor (sigma0 "gnss_group_<g>", times the common "gnss" one); None: one factor
+    gnss_variance_group: np.ndarray | None = None
 
     @property
     def n_flights(self) -> int:
@@ -353,8 +356,17 @@ class BundleAdjuster:
             gcov = gcov + np.eye(3) * self.opt.min_gnss_sigma_m ** 2
         self.gnss_cov_apriori = gcov
         self.var = {"image": 1.0, "gnss": 1.0, "control": 1.0}
+        K = len(p.gnss_camera)
+        vg = p.gnss_variance_group
+        self.gnss_vgroup = np.zeros(K, int) if vg is None else np.asarray(vg, int).reshape(-1)
+        if len(self.gnss_vgroup) != K:
+            raise ProcessingError(f"gnss_variance_group has {len(self.gnss_vgroup)} entries for {K} GNSS positions")
+        self.var_gnss_group = np.ones(int(self.gnss_vgroup.max()) + 1 if K else 1)
         if self.opt.initial_variances:
-            self.var.update(self.opt.initial_variances)
+            init = dict(self.opt.initial_variances)
+            for g in range(len(self.var_gnss_group)):
+                self.var_gnss_group[g] = init.pop(f"gnss_group_{g}", 1.0)
+            self.var.update({k: v for k, v in init.items() if not k.startswith("gnss_group_")})
         self.w_obs = np.ones(len(p.obs_camera))
         self.w_gnss = np.ones(len(p.gnss_camera))
         self.w_ctl = np.ones(len(p.control_point))
@@ -381,7 +393,7 @@ class BundleAdjuster:
             p.offsets())
         uv, *_ = _reprojection(p, intr, R, C, X, readout)
         r_obs = (uv - p.obs_uv_px) / (p.obs_sigma_px * np.sqrt(self.var["image"]))[:, None]
-        Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
+        Ug = _whiteners(self._gnss_cov())
         g, _ = _gnss_residual(p, R, C, lever, delay, off)
         r_g = np.einsum("kij,kj->ki", Ug, g)
         Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"])
@@ -389,6 +401,11 @@ class BundleAdjuster:
         self._r_prior = np.concatenate([self._lever_prior_residual(lever), self._intrinsics_prior_residual(intr),
                                         self._flight_prior_residual(off)])
         return r_obs, r_g, r_c
+
+    def _gnss_cov(self) -> np.ndarray:
+        """The GNSS positions' covariances with their variance factors (common and per variance group)."""
+        f = self.var["gnss"] * self.var_gnss_group[self.gnss_vgroup]
+        return self.gnss_cov_apriori * f[:, None, None]
 
     def _flight_prior_residual(self, off) -> np.ndarray:
         if self.flight_W is None:
@@ -500,7 +517,7 @@ class BundleAdjuster:
 
         # GNSS rows
         K = len(p.gnss_camera)
-        Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"])
+        Ug = _whiteners(self._gnss_cov())
         if K:
             g, a = _gnss_residual(p)
             sqw = np.sqrt(self.w_gnss)[:, None, None]
@@ -691,7 +708,8 @@ class BundleAdjuster:
         # hat-matrix traces of the GNSS and control rows (their parameters' marginal covariances are known)
         h_g = 0.0
         if K:
-            Ug = _whiteners(self.gnss_cov_apriori * self.var["gnss"]) * np.sqrt(self.w_gnss)[:, None, None]
+            Ug = _whiteners(self._gnss_cov()) * np.sqrt(self.w_gnss)[:, None, None]
+            h_k = np.zeros(K)
             _, a = _gnss_residual(p)
             for k in range(K):
                 i = p.gnss_camera[k]
@@ -707,7 +725,8 @@ class BundleAdjuster:
                     f0 = lay.flight_col + 3 * int(p.gnss_flight[k])
                     cols += list(range(f0, f0 + 3))
                     J = np.concatenate([J, Ug[k]], axis=1)
-                h_g += float(np.trace(J @ Sinv[np.ix_(cols, cols)] @ J.T))
+                h_k[k] = float(np.trace(J @ Sinv[np.ix_(cols, cols)] @ J.T))
+            h_g = float(h_k.sum())
         h_c = 0.0
         if Q:
             Uc = _whiteners(p.control_cov_enu_m2 * self.var["control"]) * np.sqrt(self.w_ctl)[:, None, None]
@@ -723,7 +742,13 @@ class BundleAdjuster:
         red_c = max(3 * Q - h_c, 1.0)
         s_o = float(np.sum(self.w_obs * np.sum(r_obs ** 2, 1))) / red_o
         self.var["image"] *= s_o
-        if K:
+        if K and len(self.var_gnss_group) > 1:   # one factor per variance group, from its own redundancy
+            q = self.w_gnss * np.sum(r_g ** 2, 1)
+            for g in range(len(self.var_gnss_group)):
+                m = self.gnss_vgroup == g
+                if m.any():
+                    self.var_gnss_group[g] *= float(q[m].sum()) / max(3 * int(m.sum()) - float(h_k[m].sum()), 1.0)
+        elif K:
             self.var["gnss"] *= float(np.sum(self.w_gnss * np.sum(r_g ** 2, 1))) / red_g
         if Q and red_c > 2.0:
             # few control points carry little information on their own variance: only update when
@@ -759,6 +784,8 @@ class BundleAdjuster:
         pcov = {int(j): self._point_cov(int(j), Sinv, Dinv, B)
                 for j in list(p.control_point) + list(self.opt.cov_points)}
         sig0 = {k: float(np.sqrt(v)) for k, v in self.var.items()}
+        if len(self.var_gnss_group) > 1:
+            sig0.update({f"gnss_group_{g}": float(np.sqrt(v)) for g, v in enumerate(self.var_gnss_group)})
         fl = {}
         if lay.n_flights:
             fc = slice(lay.flight_col, lay.flight_col + 3 * lay.n_flights)

@@ -56,10 +56,11 @@ def register(sub) -> None:
                         "(default: estimated in the adjustment for a rolling-shutter camera)")
     p.add_argument("--flight-offsets", choices=("auto", "on", "off"), default="auto",
                    help="a common GNSS offset per flight (battery) with a prior, in every mode (default auto: with "
-                        "two or more flights, an unsurveyed base or positions that are not RTK-fixed)")
+                        "two or more flights, an unsurveyed base, positions that are not RTK-fixed or RTK-tagged "
+                        "photos)")
     p.add_argument("--flight-offset-sigma", metavar="H,V", default=None,
                    help="each flight's own offset sigma, horizontal and vertical (m; default 0.01,0.015; raised to "
-                        "the median sigma of the flight's positions, per fixed / not-fixed part)")
+                        "the median sigma of the flight's positions, per fixed part and not-fixed stretch)")
     p.add_argument("--flight-gap", type=float, metavar="S", default=120.0,
                    help="without flight folders, a gap of more than S seconds between photos starts a flight (120)")
     p.set_defaults(func=cmd_georef)

@@ -69,6 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flights", type=int, default=1, metavar="N",
                    help="with --aircraft dji-rtk: split the survey into N flights (battery swaps), each its own "
                         "folder, and the base file in two (default 1)")
+    p.add_argument("--no-rtk-session-error", action="store_true",
+                   help="with --aircraft dji-rtk: the photos' and MRK's real-time RTK positions without the error "
+                        "common to a flight (an RTK network's or base's; by default drawn per flight at 1 cm / 1.5 cm)")
     p.add_argument("--exposure-spread", type=float, metavar="FRACTION",
                    help="per-image exposure gain drawn uniformly in 1 +- FRACTION (seeded; e.g. 0.15), on top of "
                         "the 3 %% jitter; truth in truth/radiometry.json (default 0: off)")
@@ -350,7 +353,8 @@ def run(args) -> int:
     if args.aircraft == "dji-rtk":
         from ..sim.dji_flight import write_dji_flights
 
-        dji = write_dji_flights(res, n_flights=args.flights, seed=args.seed)
+        dji = write_dji_flights(res, n_flights=args.flights, seed=args.seed,
+                                rtk_session_error=not args.no_rtk_session_error)
     total = time.perf_counter() - t0
     parts = ", ".join(f"{k} {v:.1f} s" for k, v in res.timings_s.items())
     what = f"{len(res.image_paths)} images ({res.camera.width}x{res.camera.height})" if res.image_paths else \

@@ -17,7 +17,10 @@ rewrites it:
     truth/  as for any simulated survey, plus dji_names.json (truth image name -> DJI photo name)
 
 No ``rover/``, ``nav/`` or ``events.csv``: the flight folder carries all of it. The real-time
-positions in the MRK and the XMP are the true camera centres plus noise of the stated RTK sigmas.
+positions in the MRK and the XMP are the true camera centres plus a session error common to the flight (the
+network RTK's or the RTK base's error, ``DJI_RTK_SESSION_SIGMA_M``, which the aircraft does not state; drawn per
+flight from its own random stream, so the per-exposure noise is the same with or without it) plus independent noise
+of the stated RTK sigmas. The session errors drawn are in truth/dji_names.json.
 """
 
 from __future__ import annotations
@@ -33,6 +36,9 @@ from ..gnss.gnss_time import gps_time_s_to_week_tow
 from .flight import antenna_to_camera_enu, gps_time_to_utc
 
 DJI_RTK_SIGMA_M = (0.010, 0.010, 0.015)      # the real-time RTK fix's sigmas (north, east, up)
+# the error common to one flight's real-time RTK positions (north, east, up; 1 sigma): an NTRIP network's or an RTK
+# base's position error, unstated by the aircraft. An assumption: a survey-grade RTK specification's 1 cm / 1.5 cm
+DJI_RTK_SESSION_SIGMA_M = (0.010, 0.010, 0.015)
 # the error of the aircraft's per-unit factory calibration written as DewarpData (1 sigma): relative focal
 # length and principal point (px). A modelling assumption (docs/dji.md), not a measured DJI figure.
 FACTORY_CALIBRATION_ERROR = {"f_rel": 3e-4, "pp_px": 0.3}
@@ -71,9 +77,10 @@ def _flight_of_events(events, n_flights: int) -> list[int]:
     return [flight_of_line[e.line] for e in events]
 
 
-def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
+def write_dji_flights(result, n_flights: int = 1, seed: int = 0, rtk_session_error: bool = True) -> dict:
     """Rewrite the survey of ``result`` (a ``SimulationResult`` made with a gimbal camera and GNSS) into
-    DJI flight folders (module docstring). Returns a summary of what was written."""
+    DJI flight folders (module docstring). Returns a summary of what was written. ``rtk_session_error``: False
+    leaves the RTK positions without the per-flight session error (truth plus independent noise only)."""
     from ..gnss.input_files import load_navigation
     from ..gnss.rinex_obs import read_rinex_obs
     from ..gnss.rtcm3_writer import encode_rtcm3_stream
@@ -104,6 +111,9 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
     names: dict[str, str] = {}
     folders = []
     sig = np.asarray(DJI_RTK_SIGMA_M)
+    session_rng = np.random.default_rng(np.random.SeedSequence([int(seed), 910]))
+    session_neu = session_rng.standard_normal((n_flights, 3)) * np.asarray(DJI_RTK_SESSION_SIGMA_M) \
+        * float(bool(rtk_session_error))
     dewarp = _factory_calibration_text(result.camera, rng, gps_time_to_utc(events[0].exposure_gps_time_s))
     for k in range(n_flights):
         utc0 = gps_time_to_utc(t_first[k])
@@ -126,7 +136,7 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
             te = e.exposure_gps_time_s
             off_enu = antenna_to_camera_enu(traj, te, o.flight)
             cam_enu = traj.position_enu(te) + off_enu
-            noisy = cam_enu + rng.standard_normal(3) * sig[[1, 0, 2]]
+            noisy = cam_enu + rng.standard_normal(3) * sig[[1, 0, 2]] + session_neu[k][[1, 0, 2]]
             lat, lon, h = _enu_to_llh_deg(frame, noisy)
             week, sow = gps_time_s_to_week_tow(te)
             n_mm, e_mm, v_mm = (int(round(1000 * v)) for v in (off_enu[1], off_enu[0], -off_enu[2]))
@@ -153,7 +163,10 @@ def write_dji_flights(result, n_flights: int = 1, seed: int = 0) -> dict:
     meta["aircraft"] = "dji-rtk (simulated)"
     meta_path.write_text(json.dumps(meta, indent=1) + "\n")
     write_json(out / "truth" / "dji_names.json", {"names": names, "flights": [f.name for f in folders],
-                                                 "rtk_sigma_neu_m": list(DJI_RTK_SIGMA_M)})
+                                                 "rtk_sigma_neu_m": list(DJI_RTK_SIGMA_M),
+                                                 "rtk_session_sigma_neu_m": list(DJI_RTK_SESSION_SIGMA_M)
+                                                 if rtk_session_error else [0.0, 0.0, 0.0],
+                                                 "rtk_session_error_neu_m": session_neu.round(5).tolist()})
     return {"flights": [f.name for f in folders], "photos": len(names)}
 
 

@@ -313,28 +313,61 @@ def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tu
 
 
 FIXED_STATUS = 1    # a fixed solution: PPK status 1, DJI RtkFlag 50 (photo_positions.STATUS_OF_RTK_FLAG)
+# a time without exposures after which a not-fixed stretch is taken as a new one (its bias re-drawn): an assumption,
+# of the order of the minutes a float solution's bias takes to change (docs/dji.md, "One offset per float stretch")
+FLOAT_STRETCH_GAP_S = 60.0
 
 
-def flight_offset_groups(exposures: dict, flight_sigma_enu_m) -> tuple[dict[str, int], list[dict]]:
+def _stretches(members: list[str], exposures: dict, gap_s: float) -> dict[str, int]:
+    """The not-fixed stretch (0, 1, ...) of each not-fixed exposure among ``members`` (one flight): consecutive
+    not-fixed exposures in time order (insertion order where a time is missing) are one stretch until a fixed
+    exposure or more than ``gap_s`` seconds without an exposure."""
+    t = np.array([float(exposures[n][3]) if len(exposures[n]) > 3 else np.nan for n in members])
+    order = np.argsort(t, kind="stable") if np.all(np.isfinite(t)) else np.arange(len(members))
+    out, k, prev_t, open_ = {}, -1, None, False
+    for i in order:
+        n = members[i]
+        if int(exposures[n][1]) == FIXED_STATUS:
+            open_ = False
+        else:
+            if not open_ or (prev_t is not None and np.isfinite(t[i]) and t[i] - prev_t > gap_s):
+                k += 1
+            out[n], open_ = k, True
+        prev_t = t[i]
+    return out
+
+
+def flight_offset_groups(exposures: dict, flight_sigma_enu_m,
+                         stretch_gap_s: float = FLOAT_STRETCH_GAP_S) -> tuple[dict[str, int], list[dict]]:
     """The per-flight offsets' groups and their own prior sigmas from the positions' quality (docs/dji.md, "The
     per-flight prior from the RTK quality"). ``exposures``: image -> (flight, status, per-exposure sigma E/N/U, m:
-    the PPK's, or the photo's RtkStd). Each flight's fixed exposures (status 1) form one group, its other
-    exposures (float, single point) another: a float or single-point solution's error is a bias drifting over
-    minutes, not the epoch-to-epoch noise a fixed one's sigma describes. Each group's sigma, per axis, is the larger
-    of ``flight_sigma_enu_m`` and the median of its exposures' sigmas. Returns image -> group (flight order, fixed
-    first) and one row per group."""
+    the PPK's, or the photo's RtkStd[, trigger time s]). Each flight's fixed exposures (status 1) form one group;
+    its other exposures (float, single point) one group per stretch (``_stretches``: contiguous in time, ended by
+    a fixed exposure or a gap of more than ``stretch_gap_s``): a float or single-point solution's error is a bias
+    drifting over minutes, re-drawn when the solution re-converges, not the epoch-to-epoch noise a fixed one's sigma
+    describes. Each group's sigma, per axis, is the larger of ``flight_sigma_enu_m`` and the median of its
+    exposures' sigmas. Returns image -> group (flight order, fixed first, then the stretches in time order) and one
+    row per group."""
     default = np.asarray(flight_sigma_enu_m, float).reshape(3)
-    key = {n: (int(f), int(st) != FIXED_STATUS) for n, (f, st, _) in exposures.items()}
+    key = {}
+    for f in sorted({int(v[0]) for v in exposures.values()}):
+        members = [n for n, v in exposures.items() if int(v[0]) == f]
+        stretch = _stretches(members, exposures, stretch_gap_s)
+        key.update({n: (f, 0, -1) if n not in stretch else (f, 1, stretch[n]) for n in members})
     keys = sorted(set(key.values()))
-    group_of = {n: keys.index(k) for n, k in key.items()}
+    group_of = {n: keys.index(key[n]) for n in exposures}
+    n_stretches = {f: sum(1 for k in keys if k[0] == f and k[1]) for f, _, _ in keys}
     rows = []
-    for g, (f, not_fixed) in enumerate(keys):
+    for g, (f, not_fixed, stretch) in enumerate(keys):
         members = [n for n in exposures if group_of[n] == g]
         med = np.median(np.array([np.asarray(exposures[n][2], float).reshape(3) for n in members]), axis=0)
-        rows.append({"flight": f + 1, "quality": "not fixed" if not_fixed else "fixed",
-                     "status": sorted({int(exposures[n][1]) for n in members}), "images": len(members),
-                     "median_position_sigma_enu_m": med.round(4).tolist(),
-                     "sigma_enu_m": np.maximum(default, med).round(4).tolist()})
+        row = {"flight": f + 1, "quality": "not fixed" if not_fixed else "fixed",
+               "status": sorted({int(exposures[n][1]) for n in members}), "images": len(members),
+               "median_position_sigma_enu_m": med.round(4).tolist(),
+               "sigma_enu_m": np.maximum(default, med).round(4).tolist()}
+        if not_fixed and n_stretches[f] > 1:
+            row["stretch"] = stretch + 1
+        rows.append(row)
     return group_of, rows
 
 
@@ -342,10 +375,11 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
                         base_position: dict | None, exposures: dict | None = None) -> dict | None:
     """The prior of the per-flight GNSS offsets (docs/georeferencing.md, "Several flights"), or None where they
     are not modelled: PPK or RTK camera positions, ``opts.flight_offsets`` on, or auto with two or more flights,
-    a base position that is not surveyed, or exposures that are not fixed. Common part (every flight): the base
-    position's sigma from the PPK summary where it states one (not surveyed), else 0; each flight's own part:
-    ``opts.flight_offset_sigma_m`` (horizontal, vertical), raised per group of exposures by their quality
-    (``flight_offset_groups``) where ``exposures`` (image -> flight, status, sigma E/N/U) is given."""
+    a base position that is not surveyed, exposures that are not fixed, or RTK-tagged photos. Common part (every
+    flight): the base position's sigma from the PPK summary where it states one (not surveyed), else 0; each
+    flight's own part: ``opts.flight_offset_sigma_m`` (horizontal, vertical), raised per group of exposures by their
+    quality (``flight_offset_groups``) where ``exposures`` (image -> flight, status, sigma E/N/U[, time s]) is
+    given."""
     if opts.flight_offsets == "off" or gnss is None or n_flights < 1:
         return None
     if gnss.from_photos and gnss.kind != "rtk":      # metre-level EXIF GPS: its own sigma dwarfs any offset
@@ -353,7 +387,8 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
     common = np.zeros(3)
     common_source = "surveyed base (no common part)"
     if gnss.from_photos:
-        common_source = "RTK-tagged photos: the RTK base or network taken as surveyed (no common part)"
+        common_source = ("RTK-tagged photos: the RTK session's error (network or base) is each flight's own part, "
+                         "no common part")
     elif base_position and base_position.get("sigma_enu_m") is not None:
         common = np.asarray(base_position["sigma_enu_m"], float).reshape(3)
         common_source = f"base position not surveyed ({base_position.get('source')}): its sigma"
@@ -361,7 +396,11 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
     own = np.array([h, h, v])
     group_of, groups = flight_offset_groups(exposures, own) if exposures else (None, None)
     not_fixed = bool(groups) and any(g["quality"] != "fixed" for g in groups)
-    if opts.flight_offsets == "auto" and n_flights < 2 and not np.any(common > 0) and not not_fixed:
+    # RTK-tagged photos share their session's error (the NTRIP network's or the RTK base's), which their RtkStd
+    # does not state: auto models it for one fixed flight too (docs/dji.md, "The RTK session's error")
+    rtk_session = bool(gnss.from_photos and gnss.kind == "rtk")
+    if opts.flight_offsets == "auto" and n_flights < 2 and not np.any(common > 0) and not not_fixed \
+            and not rtk_session:
         return None
     if not np.any(common > 0) and not np.any(own > 0):
         return None                                # a zero prior: nothing to model
@@ -375,8 +414,8 @@ def flight_offset_prior(opts: GeorefOptions, gnss: ImageGnss | None, n_flights: 
                             "horizontally, 1.5 cm + 1 ppm vertically)"}
     if groups:
         out.update(group_of_image=group_of, groups=groups,
-                   flight_source=out["flight_source"] + "; per group of a flight's exposures (fixed / not fixed) the "
-                   "larger of it and the median of the exposures' own sigmas (" +
+                   flight_source=out["flight_source"] + "; per group of a flight's exposures (fixed / each not-fixed "
+                   "stretch) the larger of it and the median of the exposures' own sigmas (" +
                    ("the photos' RtkStd" if gnss.from_photos else "the PPK's") + ")")
     return out
 
@@ -440,7 +479,8 @@ def _absolute_accuracy(gnss: ImageGnss | None, adj: "_Adjusted", control: Contro
                  f"{_metres(float(np.hypot(*fo['prior']['flight_sigma_enu_m'][:2]) / np.sqrt(2)))} horizontally, "
                  f"{_metres(fo['prior']['flight_sigma_enu_m'][2])} vertically per flight"
                  + (", plus the base position's sigma common to all" if any(fo["prior"]["common_sigma_enu_m"]) else "")
-                 + "".join(f"; flight {r['flight']}'s {r['images']} exposures not fixed (status {r['status']}) have "
+                 + "".join(f"; flight {r['flight']}'s {r['images']} exposures not fixed ("
+                           + (f"stretch {r['stretch']}; " if r.get("stretch") else "") + f"status {r['status']}) have "
                            f"their own offset, prior {_metres(float(np.hypot(*r['prior_sigma_enu_m'][:2]) / np.sqrt(2)))} "
                            f"horizontally, {_metres(r['prior_sigma_enu_m'][2])} vertically (from their own sigmas)"
                            for r in fo["flights"] if r.get("quality") == "not fixed")
@@ -663,7 +703,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if gnss is not None and gnss_enu:
         flights, flights_source = image_flights(gnss, found.camera_offsets_csv, opts.flight_gap_s)
         flights = {n: f for n, f in flights.items() if n in gnss_enu}
-        exposures = {n: (f, gnss_enu[n][3], np.sqrt(np.abs(np.diag(gnss_enu[n][2])))) for n, f in flights.items()}
+        exposures = {n: (f, gnss_enu[n][3], np.sqrt(np.abs(np.diag(gnss_enu[n][2]))), gnss_enu[n][4])
+                     for n, f in flights.items()}
         flight_prior = flight_offset_prior(opts, gnss, len(set(flights.values())),
                                            _ppk_summary(out).get("base_position"), exposures)
         if flight_prior is not None:
@@ -1207,6 +1248,8 @@ def _flight_offsets_summary(flight_prior: dict, gn: list[str], res, estimated_by
             row.update({"quality": groups[g]["quality"], "status": groups[g]["status"],
                         "median_position_sigma_enu_m": groups[g]["median_position_sigma_enu_m"],
                         "prior_sigma_enu_m": groups[g]["sigma_enu_m"]})
+            if groups[g].get("stretch"):
+                row["stretch"] = groups[g]["stretch"]
         rows.append(row)
     return {"model": "C = A(trigger) - o_flight + R L + v dt (o_flight: the error common to the flight's GNSS "
                      "positions, measured minus true, E/N/U)",

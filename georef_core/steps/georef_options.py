@@ -49,8 +49,8 @@ class GeorefOptions:
     factory_calibration: str = "prior"
     # a common 3-D offset of the GNSS camera positions of each flight (battery), with a prior, in every mode's
     # adjustment (docs/georeferencing.md, "Several flights"): "auto" where the positions come in two or more
-    # flights, their base position is not surveyed or some are not fixed, "on" always (PPK / RTK positions), "off"
-    # never
+    # flights, their base position is not surveyed, some are not fixed or they are RTK-tagged photos, "on" always
+    # (PPK / RTK positions), "off" never
     flight_offsets: str = "auto"
     # each flight's own offset sigma (horizontal, vertical; m): a wrong-but-consistent ambiguity set, an RTK
     # network's offset; an assumption (a survey-grade RTK specification), the base position's sigma adds to it;

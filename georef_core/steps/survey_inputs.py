@@ -72,6 +72,7 @@ class SurveyInputs:
     camera_offsets_csv: Path | None = None
     flights: list[DjiFlight] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    rtk_cross_check: dict | None = None     # the MRK's RTK quality against the photos' XMP (rtk_cross_check.py)
 
     def summary(self) -> dict:
         """What was found, as the pre-flight and the step summaries state it."""
@@ -81,6 +82,8 @@ class SurveyInputs:
         if self.flights:
             out["flights"] = [{"folder": f.folder.name, "photos": len(f.photos), "mrk": f.mrk_path.name,
                                "raw_logs": [p.name for p in f.raw_logs]} for f in self.flights]
+        if self.rtk_cross_check is not None:
+            out["rtk_cross_check"] = self.rtk_cross_check
         return out
 
 
@@ -264,7 +267,7 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
     image_dir.mkdir(parents=True, exist_ok=True)
     all_names = [p.name for f in flights for p in f.photos]
     clash = len(set(all_names)) < len(all_names)
-    rows_out = []
+    rows_out, pairs = [], []
     for fi, (flight, mrk) in enumerate(zip(flights, mrks)):
         rows, w = match_photos_to_exposures(flight, mrk, infos)
         warnings += w
@@ -275,6 +278,7 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
             flight.image_names.append(name)
             rows_out.append((name, float(mrk.gps_time_s[r]), *[float(v) for v in mrk.camera_offset_ned_m[r]],
                              int(mrk.quality[r]), fi))
+            pairs.append((name, photo, int(mrk.quality[r]), mrk.sigma_ned_m[r]))
     keep = {r[0] for r in rows_out}
     for stale in image_dir.iterdir():          # a photo removed since an earlier run
         if stale.name not in keep:
@@ -291,8 +295,16 @@ def survey_inputs(survey_dir, out_dir) -> SurveyInputs:
     rover_files = [p for f in flights for p in f.raw_logs] or \
         _gnss_files(survey_dir / "rover", ("rinex-obs", "ubx", "rtcm3"))
     nav_files = nav_files + [p for f in flights for p in f.nav_files]
+    from ..photo.rtk_cross_check import cross_check_mrk_xmp, cross_check_warning
+
+    cross = cross_check_mrk_xmp(pairs)
+    w = cross_check_warning(cross, "the camera positions come from the PPK of the raw log, so neither record enters "
+                            "the adjustment" if rover_files else "the adjustment uses the photos' XMP positions, "
+                            "sigmas and RtkFlag (no raw log)")
+    warnings += [w] if w else []
+    warnings += [f"unreadable XMP: {u}" for u in cross["unreadable_xmp"][:5]]
     return SurveyInputs(survey_dir, "dji", image_dir, sorted(keep), rover_files, base_files, nav_files, events_csv,
-                        offsets_csv, flights, warnings)
+                        offsets_csv, flights, warnings, rtk_cross_check=cross)
 
 
 def write_camera_offsets(path: Path, rows) -> None:

@@ -79,6 +79,8 @@ def test_raw_ppk_and_mrk_without_control(dji_survey, ppk_run):
     assert summary["inputs"]["layout"] == "dji"
     assert summary["images"]["with_gnss"] == summary["images"]["total"] == 30
     assert summary["adjustment"]["factory_calibration"]["used_as"] == "prior"
+    cross = summary["inputs"]["rtk_cross_check"]           # the MRK's RTK quality against the photos' XMP
+    assert (cross["checked"], cross["disagree"]) == (30, 0), cross
     assert "MRK" in summary["gnss_source"]
     lad = json.loads((ppk_run / "lever_arm_delay.json").read_text())
     assert lad["lever_arm_cam_m"] == [0.0, 0.0, 0.0]         # held: the offsets place the camera
@@ -123,6 +125,8 @@ def test_rtk_photos_alone(dji_survey, ppk_run, tmp_path):
     summary = json.loads((out / "georef_summary.json").read_text())
     assert summary["sfm"]["reused"]          # other positions, the same photos: the model is not made again
     assert "RTK camera positions in the photos' XMP" in summary["gnss_source"]
+    # one fixed RTK-photo flight: auto models its RTK session's error (the simulator draws one per flight)
+    assert [r["quality"] for r in summary["adjustment"]["flight_offsets"]["flights"]] == ["fixed"]
     rmse, n = _check_rmse_3d(out)
     assert n >= 4 and rmse <= 0.03, rmse
     truth = json.loads((dji_survey / "truth" / "camera_poses.json").read_text())

@@ -18,12 +18,14 @@ FLOAT_SIGMA_ENU_M = np.array([0.06, 0.06, 0.10])         # the float flight's st
 
 
 def float_flight_case(seed: int, rule: bool, n_control: int = 0, float_bias_m=None, float_white_m: float = 0.01,
-                      fixed_offset_m=(0.01, -0.01, 0.015), per_line: int = 8, n_points: int = 500) -> dict:
+                      fixed_offset_m=(0.01, -0.01, 0.015), per_line: int = 8, n_points: int = 500,
+                      vce_groups: bool = False) -> dict:
     """Two flights of make_block: flight 1 RTK fixed (4 mm noise, stated 4 mm) shifted by ``fixed_offset_m``, flight
     2 RTK float stated to FLOAT_SIGMA_ENU_M per exposure, its error a common bias ``float_bias_m`` (default: one
     stated sigma on each axis, signs + - +) plus ``float_white_m`` of noise per exposure. ``rule``: the offsets'
     prior from the quality (flight_offset_groups), else the default prior for each flight. ANEES of the camera
-    centres and of 12 check points (tie points) against the truth."""
+    centres and of 12 check points (tie points) against the truth. ``vce_groups``: a GNSS variance factor per quality
+    (fixed / float) instead of one for all."""
     bias = FLOAT_SIGMA_ENU_M * np.array([1.0, -1.0, 1.0]) if float_bias_m is None else np.asarray(float_bias_m, float)
     prob, truth, checks = two_flight_block(seed, np.array([fixed_offset_m, np.zeros(3)]), n_control,
                                            per_line=per_line, n_points=n_points)
@@ -42,6 +44,8 @@ def float_flight_case(seed: int, rule: bool, n_control: int = 0, float_bias_m=No
         prob.flight_offset_prior_cov_m2 = flight_offset_prior_cov(len(rows), 0.0, [r["sigma_enu_m"] for r in rows])
     else:
         prob.flight_offset_prior_cov_m2 = flight_offset_prior_cov(2, 0.0, DEFAULT_SIGMA_ENU_M)
+    if vce_groups:
+        prob.gnss_variance_group = (status != 1).astype(int)
     res = adjust(prob, BundleOptions(free_intrinsics=free_mask("brown"), estimate_lever_arm=False,
                                      estimate_delay=False, cov_points=tuple(int(c) for c in checks)))
     p = res.problem
@@ -89,13 +93,17 @@ def _gnss(n, status, from_photos=False, kind=""):
 
 @pytest.mark.parametrize("from_photos", [False, True])
 def test_auto_models_one_flight_that_is_not_fixed(from_photos):
-    """One flight over a surveyed base (or RTK photos), all fixed: auto leaves the adjustment as it was; the same
-    flight with float exposures gets the offsets, the float ones their own with their median sigma."""
+    """One flight over a surveyed base, all fixed: auto leaves the adjustment as it was; RTK-tagged photos, all fixed:
+    auto models their session's error (docs/dji.md, "The RTK session's error"); the same flight with float exposures
+    gets the offsets, the float ones their own with their median sigma."""
     opts = GeorefOptions()
     kind = "rtk" if from_photos else ""
     g = _gnss(4, [1, 1, 1, 1], from_photos, kind)
     fixed = {n: (0, 1, np.array([0.01, 0.01, 0.02])) for n in g.names}
-    assert flight_offset_prior(opts, g, 1, None, fixed) is None
+    one_fixed = flight_offset_prior(opts, g, 1, None, fixed)
+    assert (one_fixed is None) != from_photos
+    if from_photos:
+        assert one_fixed["groups"][0]["sigma_enu_m"] == [0.01, 0.01, 0.02] and "session" in one_fixed["common_source"]
     mixed = dict(fixed, **{n: (0, 2, np.array([0.08, 0.07, 0.15])) for n in g.names[2:]})
     prior = flight_offset_prior(opts, g, 1, None, mixed)
     assert prior is not None and [r["quality"] for r in prior["groups"]] == ["fixed", "not fixed"]
@@ -133,3 +141,23 @@ def test_summary_rows_and_accuracy_text_name_the_not_fixed_part():
     assert "Each of the 2 flight(s)" in text and "flight 1's 2 exposures not fixed" in text and "10.0 cm" in text
     adj.stats["mode"] = "gcp"
     assert "flight(s)" not in _absolute_accuracy(g, adj, SimpleNamespace(points={}), enu)["text"]
+
+
+def test_float_stretches_split_by_fixed_exposures_and_time_gaps():
+    """A flight's not-fixed exposures get one offset per stretch: contiguous in time, ended by a fixed exposure or
+    by more than FLOAT_STRETCH_GAP_S (60 s) without an exposure; ordered by time, not by the order given."""
+    from georef_core.steps.georef import FLOAT_STRETCH_GAP_S
+
+    s = [0.05, 0.05, 0.08]
+    ex = {"f": (0, 2, s, 8.0 + FLOAT_STRETCH_GAP_S + 1), "a": (0, 1, DEFAULT_SIGMA_ENU_M, 0.0), "b": (0, 2, s, 2.0),
+          "c": (0, 2, s, 4.0), "d": (0, 1, DEFAULT_SIGMA_ENU_M, 6.0), "e": (0, 5, [1.0, 1.0, 2.0], 8.0),
+          "g": (1, 2, s, 300.0), "h": (1, 2, s, 302.0)}
+    group_of, rows = flight_offset_groups(ex, DEFAULT_SIGMA_ENU_M)
+    assert [group_of[n] for n in "abcdefgh"] == [0, 1, 1, 0, 2, 3, 4, 4]
+    assert [(r["flight"], r["quality"], r["images"], r.get("stretch")) for r in rows] == [
+        (1, "fixed", 2, None), (1, "not fixed", 2, 1), (1, "not fixed", 1, 2), (1, "not fixed", 1, 3),
+        (2, "not fixed", 2, None)]
+    assert rows[2]["sigma_enu_m"] == [1.0, 1.0, 2.0] and rows[1]["sigma_enu_m"] == [0.05, 0.05, 0.08]
+    # without times (3-tuples) the order given is the time order: b, c one stretch, e another after the fixed d
+    g3, _ = flight_offset_groups({n: v[:3] for n, v in ex.items() if n != "f"}, DEFAULT_SIGMA_ENU_M)
+    assert [g3[n] for n in "abcdegh"] == [0, 1, 1, 0, 2, 3, 3]
