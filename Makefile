@@ -22,6 +22,7 @@ $(UI): frontend/package.json frontend/package-lock.json $(shell find frontend/sr
 # the Python environment and the browser UI are independent: built side by side (two jobs)
 install:
 	@$(MAKE) --no-print-directory -j2 $(STAMP) $(UI)
+	@if [ -f georef_core/gnss/_gnss_kernels_aot.json ]; then $(PY) -m georef_core.gnss.aot_build --if-stale; fi   # kernels edited since the build: compile them again (a build that failed for want of a compiler is not retried)
 
 # The embedded shape: SQLite, local file storage, an in-process Celery worker; the demo site is processed on first start.
 run: install

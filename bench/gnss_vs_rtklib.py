@@ -34,11 +34,18 @@ With the kernels compiled ahead of time (`python -m georef_core.gnss.aot_build`,
 `georef gnss solve` does not import numba (georef_core/gnss/kernel_loader.py); --jit-baseline times the
 same command with GEOREF_GNSS_AOT=0 (numba's JIT cache, as before) as the "before" column, checks that its
 .pos is byte-identical, and the breakdown shows both processes.
+
+Cold and warm: "ours" is the command with no resident solver (GEOREF_GNSS_SERVER=0: the whole fresh
+process); "warm" is the same command handed to a resident solver (`georef gnss server`, started before the
+cases in its own run folder, not timed), measured start to .pos written as the user's command sees it; its CPU
+seconds are the client's plus the server's own and its solve processes' (/proc/PID/stat). The warm .pos must
+be the same bytes as the cold one (a note is printed otherwise). --no-warm skips it.
 """
 
 from __future__ import annotations
 
 import argparse
+import atexit
 import compileall
 import json
 import os
@@ -215,22 +222,77 @@ def byte_compile(tree: Path) -> None:
     compileall.compile_dir(str(tree / "georef_core"), quiet=1)
 
 
-def _timed(cmd, out: Path, env: dict | None = None) -> tuple[float, float]:
+def _timed(cmd, out: Path, env: dict | None = None, server_pid: int | None = None) -> tuple[float, float]:
     """Wall seconds of the process, and its CPU seconds (user + system: less disturbed than the wall
-    time by other work on a shared machine)."""
+    time by other work on a shared machine). server_pid: the resident solver's CPU seconds over the same
+    time (its own and its reaped solve processes') are added: the solve runs there."""
     out.unlink(missing_ok=True)
     cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    s0 = _server_cpu_s(server_pid)
     t0 = time.perf_counter()
     res = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     elapsed = time.perf_counter() - t0
     cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0 or not out.exists():
         raise RuntimeError(f"{cmd[0]} failed ({res.returncode}): {res.stderr[-2000:]}")
-    return elapsed, (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+    if server_pid is not None and "solving in this process" in res.stderr:
+        raise RuntimeError(f"the resident solver did not run {out.name}: {res.stderr[-500:]}")
+    return elapsed, (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime) + _server_cpu_s(server_pid) - s0
+
+
+def _server_cpu_s(pid: int | None) -> float:
+    """utime + stime + cutime + cstime of a process (/proc/PID/stat), seconds; 0 without a pid."""
+    if pid is None:
+        return 0.0
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK")
+
+
+class ResidentSolver:
+    """`georef gnss server` for the warm figures: its own run folder, started (not niced, not timed) before
+    the cases and stopped after them. The cold figures run with GEOREF_GNSS_SERVER=0 (no server)."""
+
+    def __init__(self, tmp: Path):
+        self.run_dir = tmp / "run"
+        self.run_dir.mkdir(mode=0o700, exist_ok=True)
+        self.env = {**os.environ, "GEOREF_RUN_DIR": str(self.run_dir), "GEOREF_GNSS_SERVER": "manual"}
+        self.pid = None
+        self.restarts = -1
+
+    def status(self) -> dict:
+        res = subprocess.run([*_georef_command(None), "gnss", "server", "status", "--json"], capture_output=True,
+                             text=True, env=self.env)
+        return json.loads(res.stdout)
+
+    def start(self) -> None:
+        """Start it and wait until its spare process is warmed (as it is between a user's solves)."""
+        res = subprocess.run([*_georef_command(None), "gnss", "server", "start", "--wait", "120", "--idle-s",
+                              "3600"], capture_output=True, text=True, env=self.env)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            info = self.status()
+            if info.get("running") and info.get("spare") in ("ready", None):
+                break
+            time.sleep(0.1)
+        if res.returncode != 0 or not info.get("running"):
+            raise RuntimeError(f"resident solver not started: {res.stdout} {res.stderr}")
+        self.pid = info["pid"]
+        self.restarts += 1
+
+    def ensure(self) -> None:
+        """A server for the sources as they are now (in a working tree others edit, the one started
+        earlier may have exited: its digest changed)."""
+        if self.pid is None or not Path(f"/proc/{self.pid}").exists() or not self.status().get("running"):
+            self.start()
+
+    def stop(self) -> None:
+        if self.pid is not None:
+            subprocess.run([*_georef_command(None), "gnss", "server", "stop"], capture_output=True, env=self.env)
 
 
 def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int,
-                        before: Path | None = None, jit_baseline: bool = False) -> dict[str, tuple[float, float]]:
+                        before: Path | None = None, jit_baseline: bool = False,
+                        server: ResidentSolver | None = None) -> dict[str, tuple[float, float]]:
     """Median seconds of a fresh process, start to .pos written: demo5 (python -c + pyrtklib5.postpos), ours
     (georef gnss solve) and, with `before` (a folder holding an earlier georef_core), that copy's command;
     alternating: {"demo5" | "ours" | "before": (median wall s, median CPU s)}. The before copy's .pos must be
@@ -242,15 +304,29 @@ def whole_process_times(conf, rover, base, navs, tmp: Path, repeat: int,
     old = [*_georef_command(before), *solve, str(tmp / "proc_before.pos")] if before else None
     old_env = None
     if jit_baseline:   # the same command on numba's JIT path (kernel_loader.py)
-        old, old_env = [*_georef_command(None), *solve, str(tmp / "proc_before.pos")], {**os.environ, "GEOREF_GNSS_AOT": "0"}
-    runs = {"demo5": [], "ours": [], "before": []}
+        old, old_env = ([*_georef_command(None), *solve, str(tmp / "proc_before.pos")],
+                        {**os.environ, "GEOREF_GNSS_AOT": "0", "GEOREF_GNSS_SERVER": "0"})
+    cold_env = {**os.environ, "GEOREF_GNSS_SERVER": "0"}   # no resident solver: a whole fresh process
+    if old and old_env is None:
+        old_env = cold_env
+    warm = [*_georef_command(None), *solve, str(tmp / "proc_warm.pos")] if server else None
+    runs = {"demo5": [], "ours": [], "before": [], "warm": []}
     for _ in range(repeat):
         runs["demo5"].append(_timed(demo5, tmp / "proc_demo5.pos"))
-        runs["ours"].append(_timed(ours, tmp / "proc_ours.pos"))
+        runs["ours"].append(_timed(ours, tmp / "proc_ours.pos", cold_env))
         if old:
             runs["before"].append(_timed(old, tmp / "proc_before.pos", old_env))
+        if warm:
+            server.ensure()
+            try:
+                runs["warm"].append(_timed(warm, tmp / "proc_warm.pos", server.env, server.pid))
+            except (RuntimeError, OSError):   # the sources changed under it: once more, with a fresh server
+                server.start()
+                runs["warm"].append(_timed(warm, tmp / "proc_warm.pos", server.env, server.pid))
     if old and (tmp / "proc_before.pos").read_bytes() != (tmp / "proc_ours.pos").read_bytes():
         print(f"  note: {conf.name}: the before copy's .pos differs from ours (not the same engine?)")
+    if warm and (tmp / "proc_warm.pos").read_bytes() != (tmp / "proc_ours.pos").read_bytes():
+        print(f"  note: {conf.name}: the resident solver's .pos differs from the fresh process's")
     return {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in runs.items() if v}
 
 
@@ -267,6 +343,8 @@ def main() -> int:
                     help="a folder holding a copy of georef_core from before a change: timed beside ours")
     ap.add_argument("--jit-baseline", action="store_true",
                     help="time our command on numba's JIT path (GEOREF_GNSS_AOT=0) as the before column")
+    ap.add_argument("--no-warm", action="store_true",
+                    help="whole process: skip the warm figures (the command handed to a running resident solver)")
     args = ap.parse_args()
     if args.before is not None and args.jit_baseline:
         print("--before and --jit-baseline: one or the other")
@@ -305,7 +383,12 @@ def main() -> int:
           f"{'fix demo5':>9s} {'fix ours':>8s} {'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} | judged: {'fix demo5':>9s} "
           f"{'medH mm':>7s} {'medV mm':>7s} {'>5cm':>5s} {'refuted demo5/ours':>18s} {'by reverse':>10s} "
           "| our time split (s)")
-    ratios, proc_ratios, cpu_ratios, before_ratios = [], [], [], []
+    ratios, proc_ratios, cpu_ratios, before_ratios, warm_ratios = [], [], [], [], []
+    server = None
+    if args.process_repeat > 0 and not args.no_warm:
+        server = ResidentSolver(tmp)
+        server.start()
+        atexit.register(server.stop)
     for ds, name, rover, base, navs, conf, ref in cases:
         d_times, o_times = [], []
         for _ in range(args.repeat):
@@ -324,7 +407,8 @@ def main() -> int:
         split = ", ".join(f"{k} {v:.2f}" for k, v in sol.timings_s.items() if v >= 0.01)
         ratios.append(td / to)
         if args.process_repeat > 0:
-            w = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat, args.before, args.jit_baseline)
+            w = whole_process_times(conf, rover, base, navs, tmp, args.process_repeat, args.before, args.jit_baseline,
+                                    server)
             (pd_s, pd_cpu), (po_s, po_cpu) = w["demo5"], w["ours"]
             proc_ratios.append(pd_s / po_s)
             cpu_ratios.append(pd_cpu / po_cpu)
@@ -333,6 +417,10 @@ def main() -> int:
                 pb_s, pb_cpu = w["before"]
                 before_ratios.append((pd_s / pb_s, pd_cpu / pb_cpu))
                 proc += f"; before {pb_s:.2f} s: {pd_s / pb_s:.2f}, CPU {pb_cpu:.2f} s: {pd_cpu / pb_cpu:.2f}"
+            if "warm" in w:
+                pw_s, pw_cpu = w["warm"]
+                warm_ratios.append((pd_s / pw_s, pd_cpu / pw_cpu))
+                proc += f"; warm {pw_s:.2f} s: {pd_s / pw_s:.2f}, CPU {pw_cpu:.2f} s: {pd_cpu / pw_cpu:.2f}"
             proc += ") "
         else:
             proc = f"{'-':>12s} {'-':>11s} {'-':>6s} "
@@ -344,12 +432,26 @@ def main() -> int:
     print(f"\nspeed ratio ours/demo5 (epochs per second, >1 = faster): median {statistics.median(ratios):.2f}, "
           f"min {min(ratios):.2f}, max {max(ratios):.2f} over {len(ratios)} cases")
     if proc_ratios:
-        print(f"whole-process ratio demo5/ours (seconds, >1 = faster): median {statistics.median(proc_ratios):.2f}, "
+        print(f"whole-process ratio demo5/ours, cold (no resident solver; seconds, >1 = faster): median {statistics.median(proc_ratios):.2f}, "
               f"min {min(proc_ratios):.2f}, max {max(proc_ratios):.2f} over {len(proc_ratios)} cases")
         print(f"  in CPU seconds: median {statistics.median(cpu_ratios):.2f}, min {min(cpu_ratios):.2f}, "
               f"max {max(cpu_ratios):.2f}")
         print(f"  cases where ours finishes first (ratio >= 1): {sum(r >= 1 for r in proc_ratios)} of {len(proc_ratios)} "
               f"in seconds, {sum(r >= 1 for r in cpu_ratios)} of {len(cpu_ratios)} in CPU seconds")
+    if server is not None:
+        server.stop()
+        if server.restarts:
+            print(f"  (the resident solver was started again {server.restarts} time(s): georef_core changed while "
+                  "the bench ran)")
+    from georef_core.gnss import kernel_loader as kl
+
+    print("ahead-of-time kernels at the end: " + ("current" if kl.load_aot(respect_env=False)[0] is not None
+                                                  else "STALE (the cold figures used numba's JIT path)"))
+    if warm_ratios:
+        for i, what in enumerate(("seconds", "CPU seconds")):
+            r = [b[i] for b in warm_ratios]
+            print(f"  warm (resident solver running), in {what}: median {statistics.median(r):.2f}, "
+                  f"min {min(r):.2f}, max {max(r):.2f}, ratio >= 1 in {sum(x >= 1 for x in r)} of {len(r)}")
     if before_ratios:
         for i, what in enumerate(("seconds", "CPU seconds")):
             r = [b[i] for b in before_ratios]

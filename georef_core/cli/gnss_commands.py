@@ -56,7 +56,23 @@ def register(sub) -> None:
                                     "default: events in the rover file")
     p.add_argument("--crs", type=int, help="also write coordinates in this EPSG CRS (e.g. 32631)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--no-server", action="store_true",
+                   help="solve in this process, not in the resident solver (also: GEOREF_GNSS_SERVER=0; docs/gnss.md)")
     p.set_defaults(func=cmd_solve)
+    srv = gsub.add_parser("server", help="the resident solver that makes `georef gnss solve` start fast "
+                                         "(started by the first solve; docs/gnss.md)")
+    srv.add_argument("action", choices=["start", "stop", "status"])
+    srv.add_argument("--wait", type=float, default=0.0, metavar="S",
+                     help="start: wait up to S seconds until it answers")
+    srv.add_argument("--idle-s", type=float, help="start: exit after this many seconds without a solve (default 900)")
+    srv.add_argument("--json", action="store_true", help="status: as JSON")
+    srv.set_defaults(func=_cmd_server)
+
+
+def _cmd_server(args) -> int:
+    from .solver_client import cmd_server
+
+    return cmd_server(args)
 
 
 def options_from_args(args) -> tuple[RtkOptions, list[str]]:
@@ -113,6 +129,8 @@ def options_from_args(args) -> tuple[RtkOptions, list[str]]:
         changes["slip_tdcp_threshold_m"] = args.tdcp_slips
     if args.hold_variance is not None:
         changes["hold_variance_cyc2"] = args.hold_variance
+    if args.fix_max_sigma is not None:
+        changes["fix_max_sigma_m"] = args.fix_max_sigma
     opts = opts.replace(**changes)
     try:
         opts.validate()
@@ -129,8 +147,6 @@ def cmd_solve(args) -> int:
     from ..steps.gnss_solve import run_gnss_solve
 
     opts, notes = options_from_args(args)
-    if args.fix_max_sigma is not None:
-        changes["fix_max_sigma_m"] = args.fix_max_sigma
     for n in notes:
         print(f"georef: warning: {n}", file=sys.stderr)
     if not aot:

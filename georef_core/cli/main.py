@@ -9,6 +9,12 @@ from ..errors import GeorefError
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:   # the `georef` command itself: a gnss solve goes to the resident solver when one listens
+        from .solver_client import served_exit_code
+
+        served = served_exit_code(sys.argv[1:])
+        if served is not None:
+            return served
     parser = argparse.ArgumentParser(prog="georef", description="Directly georeferenced drone surveys.")
     sub = parser.add_subparsers(dest="command", required=True)
     from . import (dense_command, demo_command, georef_command, gnss_commands, simulate_command, steps_command,
