@@ -132,6 +132,7 @@ def hole_causes(work: Path, mask: np.ndarray, footprint: np.ndarray, res: float)
     edge = ndimage.distance_transform_edt(footprint) * res < 5.0
     with rasterio.open(work / "dense" / "ortho.tif") as os_:
         rgb = os_.read([1, 2, 3]).astype(np.float32)
+        alpha = os_.read(4) if os_.count >= 4 else np.full(rgb.shape[1:], 255, np.uint8)
         ot, crs = os_.transform, os_.crs
     with rasterio.open(work / "dense" / "dsm.tif") as ds:
         dt = ds.transform
@@ -139,12 +140,16 @@ def hole_causes(work: Path, mask: np.ndarray, footprint: np.ndarray, res: float)
     k = max(3, int(round(1.0 / ot.a)))
     m = cv2.blur(grey, (k, k))
     std = np.sqrt(np.maximum(cv2.blur(grey * grey, (k, k)) - m * m, 0))
+    # cells the orthophoto does not cover (and their ~1 m rim) have no texture figure: without this, their zero
+    # std set the 20th percentile to 0 on a block with holes and no hole was "low texture"
+    std[cv2.erode((alpha > 0).astype(np.uint8), np.ones((k, k), np.uint8)) == 0] = np.nan
     s = rgb.sum(axis=0) + 1e-3
     exg = (2 * rgb[1] - rgb[0] - rgb[2]) / s
     out = {}
     for name, a in (("std", std), ("exg", exg)):
         dst = np.full(mask.shape, np.nan, np.float32)
-        reproject(a, dst, src_transform=ot, src_crs=crs, dst_transform=dt, dst_crs=crs, resampling=Resampling.average)
+        reproject(a, dst, src_transform=ot, src_crs=crs, dst_transform=dt, dst_crs=crs, resampling=Resampling.average,
+                  src_nodata=np.nan, dst_nodata=np.nan)
         out[name] = dst
     low_tex = out["std"] < np.nanpercentile(out["std"][footprint], 20)
     veg = out["exg"] > 0.05

@@ -135,14 +135,29 @@ CAUSE_NAMES = {CAUSE_MEASURED: "measured", CAUSE_COARSE: "coarse", CAUSE_FILLED_
                CAUSE_EMPTY_UNSEEN: "no_data_unseen"}
 
 
-def images_seeing(grid: RasterGrid, dsm: np.ndarray, views, frame, step: int = 8) -> np.ndarray:
-    """(rows, cols) uint16: how many of ``views`` have the cell inside their image (its point at the DSM's
-    height; empty cells at the nearest cell's, or the median height), on a lattice of every ``step``-th cell
-    spread to its neighbours (footprints are smooth). Occlusion is not tested: a count of footprints."""
+def images_seeing(grid: RasterGrid, dsm: np.ndarray, views, frame, step: int = 8, mask: np.ndarray | None = None,
+                  tolerance_cells: float = 3.0, low_radius_m: float = 3.0,
+                  max_face_points: int = 100) -> np.ndarray:
+    """(rows, cols) uint16: how many of ``views`` see each cell.
+
+    Without ``mask``: a count of footprints - the cell's point (at the DSM's height; empty cells at the nearest
+    cell's) inside the image, on a lattice of every ``step``-th cell spread to its neighbours.
+
+    With ``mask`` (the DSM's measurement classes), occlusion is tested: a view sees a cell when its point is
+    inside the image and not hidden behind the measured surface, i.e. its depth is at most ``tolerance_cells``
+    cells + 5 cm behind the view's z-buffer of the measured cells (each measured cell's point splatted into a
+    coarse depth image of the view, pixels of 1.5 projected cells, as the orthophoto's test; and, unlike it, the
+    cell's vertical face down to its lowest neighbour, a point per cell of height, at most ``max_face_points``:
+    an oblique view looks at a wall's side, not its top, where the wall hides the ground). A measured cell is
+    tested at its height; an unmeasured one at the lowest measured height within a radius (2 x the hole's largest
+    distance to its rim + 2 cells, at most ``low_radius_m``; else at its filled height): the interpolation
+    across a hole behind a wall or a pile ramps from the crest down to the ground and would be "seen" from the
+    crest's side, while the ground it stands for is hidden there. The lower height is the conservative choice:
+    on a steep flank a wide hole can count fewer views than see the true surface.
+    Only unmeasured cells are counted (the classes of measured cells do not depend on it; measured cells get
+    0), on a lattice of every 2nd unmeasured cell (and isolated ones) spread to its neighbours."""
     from scipy import ndimage
 
-    rows = np.arange(step // 2, grid.height, step) if grid.height > step else np.array([grid.height // 2])
-    cols = np.arange(step // 2, grid.width, step) if grid.width > step else np.array([grid.width // 2])
     z = np.asarray(dsm, np.float64)
     have = np.isfinite(z)
     if not have.any():
@@ -150,18 +165,108 @@ def images_seeing(grid: RasterGrid, dsm: np.ndarray, views, frame, step: int = 8
     if not have.all():
         idx = ndimage.distance_transform_edt(~have, return_distances=False, return_indices=True)
         z = z[idx[0], idx[1]]
-    R, C = np.meshgrid(rows, cols, indexing="ij")
-    E = grid.west + (C + 0.5) * grid.resolution_m
-    N = grid.north - (R + 0.5) * grid.resolution_m
-    X = frame.grid_to_enu(E.ravel(), N.ravel(), z[R, C].ravel())
-    count = np.zeros(X.shape[0], np.uint16)
+    if mask is None:
+        rows = np.arange(step // 2, grid.height, step) if grid.height > step else np.array([grid.height // 2])
+        cols = np.arange(step // 2, grid.width, step) if grid.width > step else np.array([grid.width // 2])
+        R, C = np.meshgrid(rows, cols, indexing="ij")
+        X = frame.grid_to_enu(*_cell_en(grid, R.ravel(), C.ravel()), z[R, C].ravel())
+        count = np.zeros(X.shape[0], np.uint16)
+        for v in views:
+            uv, depth = v.project_distorted(X)
+            count += ((depth > 0) & v.inside(uv)).astype(np.uint16)
+        lattice = count.reshape(R.shape)
+        ri = np.clip(np.searchsorted(rows, np.arange(grid.height) - step / 2.0 + 0.5), 0, len(rows) - 1)
+        ci = np.clip(np.searchsorted(cols, np.arange(grid.width) - step / 2.0 + 0.5), 0, len(cols) - 1)
+        return lattice[ri][:, ci]
+
+    measured = ((mask == MASK_MEASURED) | (mask == MASK_COARSE)) & have
+    out = np.zeros(z.shape, np.uint16)
+    todo = ~measured
+    if not todo.any() or not measured.any():
+        return out
+    res = grid.resolution_m
+    # the radius of the lower envelope grows with the hole: 2 x its largest distance to its rim + 2 cells, at most
+    # low_radius_m (a one-cell sampling gap on a slope looks only at its neighbours: tested a few cm low, not
+    # the slope's drop over metres), rounded up to steps of max(2 cells, 0.2 m)
+    labels, n_holes = ndimage.label(todo)
+    to_rim = ndimage.distance_transform_edt(todo) * res
+    inradius = np.zeros(n_holes + 1)
+    if n_holes:
+        inradius[1:] = ndimage.maximum(to_rim, labels, np.arange(1, n_holes + 1))
+    r_step = max(2.0 * res, 0.2)
+    radius = np.minimum(np.ceil((2.0 * inradius[labels] + 2.0 * res) / r_step - 1e-9) * r_step, low_radius_m)
+    z_meas = np.where(measured, z, np.inf)
+    z_test = z.copy()
+    for r_m in np.unique(radius[todo]):
+        cells = todo & (radius == r_m)
+        r_cells = max(1, int(round(r_m / res)))
+        low = ndimage.minimum_filter(z_meas, size=2 * r_cells + 1, mode="constant", cval=np.inf)
+        z_test[cells] = np.where(np.isfinite(low[cells]), np.minimum(z[cells], low[cells]), z[cells])
+    # the test points: every 2nd unmeasured cell in each direction (holes are smooth at that scale), and every
+    # unmeasured cell farther than one cell from those (isolated gaps off the lattice)
+    lat = todo.copy()
+    lat[1::2, :] = False
+    lat[:, 1::2] = False
+    if lat.any():
+        lat |= todo & (ndimage.distance_transform_edt(~lat) > 1.5)
+    else:
+        lat = todo
+    tr, tc = np.nonzero(lat)
+    X = frame.grid_to_enu(*_cell_en(grid, tr, tc), z_test[tr, tc])
+    # occluders: each measured cell's point, and its vertical face down to its lowest neighbour (a wall's or a
+    # pile's side, which a height raster does not hold but which hides the ground behind it), a point per cell
+    mr, mc = np.nonzero(measured)
+    drop = z - ndimage.minimum_filter(np.where(measured, z, z_test), size=3, mode="nearest")
+    steps = np.clip(np.floor(drop[mr, mc] / res).astype(np.int64), 0, max_face_points)
+    rep = np.repeat(np.arange(len(mr)), steps)
+    j = np.arange(len(rep)) - np.repeat(np.cumsum(steps) - steps, steps) + 1
+    mh = np.concatenate([z[mr, mc], z[mr[rep], mc[rep]] - j * drop[mr[rep], mc[rep]] / (steps[rep] + 1)])
+    mr, mc = np.concatenate([mr, mr[rep]]), np.concatenate([mc, mc[rep]])
+    M = frame.grid_to_enu(*_cell_en(grid, mr, mc), mh)
+    tol = tolerance_cells * res + 0.05
+    sub = slice(None, None, 16)      # every 16th measured point: the view's footprint on the grid
+    count = np.zeros(len(X), np.uint16)
     for v in views:
         uv, depth = v.project_distorted(X)
-        count += ((depth > 0) & v.inside(uv)).astype(np.uint16)
-    lattice = count.reshape(R.shape)
-    ri = np.clip(np.searchsorted(rows, np.arange(grid.height) - step / 2.0 + 0.5), 0, len(rows) - 1)
-    ci = np.clip(np.searchsorted(cols, np.arange(grid.width) - step / 2.0 + 0.5), 0, len(cols) - 1)
-    return lattice[ri][:, ci]
+        cand = (depth > 0) & v.inside(uv)
+        if not cand.any():
+            continue
+        uvs, ds = v.project_distorted(M[sub])
+        ins = (ds > 0) & v.inside(uvs)
+        if not ins.any():
+            count[cand] += 1   # no measured surface in the image to hide anything
+            continue
+        pad = 32
+        r0, r1 = mr[sub][ins].min() - pad, mr[sub][ins].max() + pad
+        c0, c1 = mc[sub][ins].min() - pad, mc[sub][ins].max() + pad
+        box = (mr >= r0) & (mr <= r1) & (mc >= c0) & (mc <= c1)
+        cell_px = res * v.focal_px / float(np.median(ds[ins]))
+        zb_px = max(1.0, 1.5 * cell_px)
+        zw, zh = int(np.ceil(v.width / zb_px)) + 1, int(np.ceil(v.height / zb_px)) + 1
+        zbuf = np.full(zh * zw, np.inf, np.float32)
+        uvm, dm = v.project_distorted(M[box])
+        good = (dm > 0) & v.inside(uvm)
+        ui = np.floor((uvm[good, 0] + 0.5) / zb_px).astype(np.int64)
+        vi = np.floor((uvm[good, 1] + 0.5) / zb_px).astype(np.int64)
+        np.minimum.at(zbuf, vi * zw + ui, dm[good].astype(np.float32))
+        zbuf = zbuf.reshape(zh, zw)
+        k = np.nonzero(cand)[0]
+        ui = np.clip(np.floor((uv[k, 0] + 0.5) / zb_px).astype(np.int64), 0, zw - 1)
+        vi = np.clip(np.floor((uv[k, 1] + 0.5) / zb_px).astype(np.int64), 0, zh - 1)
+        seen = depth[k] <= zbuf[vi, ui] + tol
+        count[k[seen]] += 1
+    # spread the lattice's counts to the other unmeasured cells (nearest lattice cell)
+    grid_count = np.zeros(z.shape, np.uint16)
+    grid_count[tr, tc] = count
+    idx = ndimage.distance_transform_edt(~lat, return_distances=False, return_indices=True)
+    spread = grid_count[idx[0], idx[1]]
+    out[todo] = spread[todo]
+    return out
+
+
+def _cell_en(grid: RasterGrid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """E, N of cell centres."""
+    return grid.west + (cols + 0.5) * grid.resolution_m, grid.north - (rows + 0.5) * grid.resolution_m
 
 
 def hole_causes(mask: np.ndarray, seen: np.ndarray) -> np.ndarray:

@@ -364,8 +364,8 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
                              tags={"VALUES": "0 measured, 2 measured at coarse resolution (coarse pass only), "
                                              "1 filled (interpolated), 255 no data"})
         # band 2: why a cell has or lacks a measurement (interpolated or empty where the images saw it without
-        # agreeing on a depth, or where fewer than 2 images see it)
-        causes = hole_causes(mask, images_seeing(dgrid, dsm_filled, views, frame))
+        # agreeing on a depth, or where fewer than 2 images see it; "see": not hidden behind the measured surface)
+        causes = hole_causes(mask, images_seeing(dgrid, dsm_filled, views, frame, mask=mask))
         cog_writer.write_cog(dense_dir / "dsm_support.tif", np.stack([tiers.support, causes]), dgrid.transform,
                              frame.epsg, nodata=SUPPORT_NODATA, overview_resampling="NEAREST",
                              descriptions=["views agreeing on the cell (0: interpolated, no support)",

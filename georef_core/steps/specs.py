@@ -145,7 +145,7 @@ GEOREF = StepSpec(
 
 # --------------------------------------------------------------------------------------------------- dense
 DENSE = StepSpec(
-    name="dense", title="Dense surface", version=4,
+    name="dense", title="Dense surface", version=5,
     description="Dense point cloud, DSM and orthophoto on the CPU (docs/dense.md).",
     function="georef_core.steps.dense:step_entry", depends_on=("georef",), heavy=True, site_data=("crs",),
     # spatial tiles that workers run in parallel (steps/dense_tiles.py; docs/dense.md "Large surveys")
