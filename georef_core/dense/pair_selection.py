@@ -58,6 +58,21 @@ def footprint_overlap(ref: CameraView, src: CameraView, ground_up_m: float, n: i
     return float(np.count_nonzero((z > 0) & src.inside(uv)) / len(t))
 
 
+def _within_reach(C: np.ndarray, A: np.ndarray, i: int, depth_m: float, opts: PairSelectionOptions) -> list[int]:
+    """Indices j != i whose baseline-to-depth ratio and axis angle may pass candidate_pairs' tests (a superset:
+    bounds widened by 1e-9 relative, so that rounding never drops a pair the exact per-pair test keeps)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bd = np.sqrt(np.sum((C - C[i]) ** 2, axis=1)) / depth_m
+    cos_min = np.cos(np.radians(opts.max_axis_angle_deg))
+    near = ((bd >= opts.min_b_over_d * (1 - 1e-9)) & (bd <= opts.max_b_over_d * (1 + 1e-9))
+            & ~(A @ A[i] < cos_min - 1e-9))   # a NaN axis goes on to the exact test, as before
+    near[i] = False
+    if not np.isfinite(depth_m) or depth_m <= 0:
+        near[:] = True     # no usable depth: every partner goes to the exact test, as before
+        near[i] = False
+    return [int(j) for j in np.flatnonzero(near)]
+
+
 def candidate_pairs(views: list[CameraView], prior: SparsePrior, opts: PairSelectionOptions) -> list[list[StereoPair]]:
     """All acceptable partners of each view, best score first."""
     C = np.array([v.centre_enu_m for v in views])
@@ -67,9 +82,10 @@ def candidate_pairs(views: list[CameraView], prior: SparsePrior, opts: PairSelec
         depth = prior.views[i].depth_med_m
         ground = prior.views[i].ground_up_m
         cands = []
-        for j, src in enumerate(views):
-            if j == i:
-                continue
+        # the partners within reach, found at once for the whole block (a loop over every pair costs seconds per
+        # hundred images and grows as images^2); a slightly wider test than the exact one below, which decides
+        for j in _within_reach(C, A, i, depth, opts):
+            src = views[j]
             b = float(np.linalg.norm(C[j] - C[i]))
             bd = b / depth
             if not (opts.min_b_over_d <= bd <= opts.max_b_over_d):

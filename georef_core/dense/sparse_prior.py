@@ -48,9 +48,13 @@ def nearest_neighbours(views: list[CameraView], k: int, max_axis_angle_deg: floa
     cos_max = np.cos(np.radians(max_axis_angle_deg))
     pairs = set()
     for i in range(len(views)):
-        order = [j for j in np.argsort(d[i]) if np.isfinite(d[i, j]) and A[i] @ A[j] >= cos_max]
-        for j in order[:k]:
-            pairs.add((min(i, int(j)), max(i, int(j))))
+        taken = 0
+        for j in np.argsort(d[i]):   # nearest first; stop at k (not a test of every image: images^2)
+            if taken >= k or not np.isfinite(d[i, j]):
+                break
+            if A[i] @ A[j] >= cos_max:
+                pairs.add((min(i, int(j)), max(i, int(j))))
+                taken += 1
     return sorted(pairs)
 
 
@@ -104,6 +108,42 @@ def triangulate_features(views: list[CameraView], max_size: int = 1024, n_featur
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+class _PointsNear:
+    """The sparse points a view may see, without projecting every point into every view (the points grow with
+    the block, so that costs images^2: minutes at 1000 images). The points are sorted by east; a view's image
+    pyramid, cut by the slab of the points' heights, lies in the box of its 4 corner rays' ends on the slab's
+    two planes, and only the points in that box (a superset of those it sees: the caller's exact test decides)
+    are returned, in their original order. A view that is not above the slab, or a corner ray that does not
+    point down, gets every point (the exact test on all, as before)."""
+
+    def __init__(self, xyz_enu_m: np.ndarray):
+        self.xyz = xyz_enu_m
+        self.order = np.argsort(xyz_enu_m[:, 0], kind="stable")
+        self.east = xyz_enu_m[self.order, 0]
+        self.z_lo = float(xyz_enu_m[:, 2].min()) if len(xyz_enu_m) else 0.0
+        self.z_hi = float(xyz_enu_m[:, 2].max()) if len(xyz_enu_m) else 0.0
+
+    def in_view(self, view: CameraView) -> np.ndarray:
+        n = len(self.xyz)
+        every = np.arange(n)
+        c = np.asarray(view.centre_enu_m, float)
+        if not n or not np.all(np.isfinite(c)) or c[2] <= self.z_hi:
+            return every
+        u = np.array([-0.5, view.width - 0.5, view.width - 0.5, -0.5])
+        v = np.array([-0.5, -0.5, view.height - 0.5, view.height - 0.5])
+        rays = view.rays_enu(u, v)
+        if not np.all(np.isfinite(rays)) or np.any(rays[:, 2] >= 0):
+            return every
+        ends = np.concatenate([c + ((h - c[2]) / rays[:, 2])[:, None] * rays for h in (self.z_lo, self.z_hi)])
+        pad = 1e-6 * (1.0 + np.abs(ends[:, :2]).max()) + 1e-3
+        w, s = ends[:, 0].min() - pad, ends[:, 1].min() - pad
+        e, nn = ends[:, 0].max() + pad, ends[:, 1].max() + pad
+        a, b = np.searchsorted(self.east, w, side="left"), np.searchsorted(self.east, e, side="right")
+        idx = self.order[a:b]
+        y = self.xyz[idx, 1]
+        return np.sort(idx[(y >= s) & (y <= nn)])
+
+
 def build_sparse_prior(views: list[CameraView], sparse_xyz_enu_m: np.ndarray | None = None,
                        min_points: int = 200) -> SparsePrior:
     """Scene depths per view from the given sparse points (when at least ``min_points``), else from
@@ -123,13 +163,15 @@ def build_sparse_prior(views: list[CameraView], sparse_xyz_enu_m: np.ndarray | N
     xyz = xyz[np.all(np.abs(xyz - med) < 12.0 * mad + 1.0, axis=1)]
     per_view = []
     all_lo = []
+    near = _PointsNear(xyz)
     for v in views:
-        uv, z = v.project_pinhole(xyz)
+        sub = xyz[near.in_view(v)]   # a superset of the points the view sees, found without testing them all
+        uv, z = v.project_pinhole(sub)
         ok = (z > 0) & v.inside(uv)
         if ok.sum() >= 10:
             zs = z[ok]
             lo, md, hi = np.percentile(zs, [2, 50, 98])
-            per_view.append(ViewDepth(float(lo), float(md), float(hi), float(np.median(xyz[ok, 2])), int(ok.sum())))
+            per_view.append(ViewDepth(float(lo), float(md), float(hi), float(np.median(sub[ok, 2])), int(ok.sum())))
             all_lo.append((lo, md, hi))
         else:
             per_view.append(None)

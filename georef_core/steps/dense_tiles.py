@@ -118,12 +118,21 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
     n_tiles = tile_count(opts.tiles, n_img)
     if n_tiles <= 1:
         return [{"tile": "whole"}]   # one part: the step runs as one (steps/dense.py run_dense)
+    t_plan = [time.perf_counter()]
+    plan_s = {}   # the plan's serial stages (wall seconds), in the grid: the benchmark prints them
+
+    def lap(name):
+        t_plan.append(time.perf_counter())
+        plan_s[name] = round(t_plan[-1] - t_plan[-2], 3)
+
     oriented = read_oriented_images(path)
     if len(oriented.images) < 2:
         raise InputFileError(path, f"dense reconstruction needs at least 2 oriented images, found "
                                    f"{len(oriented.images)}")
     views = views_from_oriented(oriented, opts.max_image_size, source=path)
+    lap("read")
     prior = build_sparse_prior(views, oriented.sparse_xyz_enu_m)
+    lap("sparse_prior")
     native = [prior.views[k].depth_med_m / oriented.cameras[oriented.images[k].camera_id].K()[0, 0]
               for k in range(len(views))]
     working = [prior.views[k].depth_med_m / views[k].focal_px for k in range(len(views))]
@@ -163,13 +172,16 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
     # map is computed once (phase 1: its group's depth part), the tiles fuse them (phase 2)
     views = [replace(v, scene_depth_m=prior.views[k].depth_med_m) if v.rolling_shutter else v
              for k, v in enumerate(views)]
+    lap("footprints")
     sources = select_sources(views, prior, opts.pairs)
+    lap("pairs")
     if not any(sources):
         raise ProcessingError("no image pair overlaps enough for stereo matching (check the orientations and the "
                               "overlap of the flight)")
     matched = [i for i in range(len(views)) if sources[i]]
     neighbours = fusion_neighbours(views, matched, [p.ground_up_m for p in prior.views],
                                    [p.depth_hi_m for p in prior.views], opts.fusion)
+    lap("neighbours")
     # exact values (JSON keeps a float's digits): the depth parts search the disparities a one run searches
     prior_of = {names[k]: [float(v.depth_lo_m), float(v.depth_med_m), float(v.depth_hi_m), float(v.ground_up_m),
                            int(v.n_points)] for k, v in enumerate(prior.views)}
@@ -199,6 +211,7 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
         radiometry = [{"phase": "radiometry", "after": list(range(len(depth_parts))),
                        "reads": ["depth_summary.json", "radiometry_obs.npz"], "grid": grid}]
     grid["first_tile"] = len(depth_parts) + len(radiometry)
+    grid["plan_s"] = plan_s
     rad_after = [len(depth_parts)] if radiometry else []
     parts = []
     for iy in range(len(ys) - 1):
@@ -222,6 +235,7 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
                           "prior": {names[i]: prior_of[names[i]] for i in needs},
                           "neighbours": {names[i]: [names[j] for j in neighbours.get(i, [])] for i in refs},
                           "grid": grid})
+    lap("parts")   # the tiles' descriptors (filled in: every part shares this grid)
     return depth_parts + radiometry + parts
 
 
