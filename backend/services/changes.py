@@ -98,11 +98,11 @@ def on_run_finished(db, storage: Storage, run_id: str) -> list[tuple]:
                    "changes": run.changes if run.state == "succeeded" else None}
         msgs = enqueue_event(s, run.site_id, f"run.{run.state}", payload)
         if run.state == "succeeded":   # the site's design changes between surveys, computed ahead of the first view
-            from .design_changes import queue_after_run
+            from .designs import queue_changes_after_run
 
             try:
                 with s.begin_nested():
-                    msgs += queue_after_run(s, run)
+                    msgs += queue_changes_after_run(s, run)
             except Exception as exc:   # never an error for the run: design-progress queues them when asked
                 log.warning("design changes of run %s not queued: %s", run.id, exc)
         return msgs

@@ -1,5 +1,5 @@
 """The change between two surveys of a site's design, surface against surface, as a queued job whose state is in
-the database (table design_changes): design-progress asks for it (request_change: a row per pair of design
+the database (table design_changes): design-progress asks for it (request_changes; a row per pair of design
 results, area and common-bias figure, queued once, its message sent after commit), a worker computes it
 (worker/tasks.design_change: claim -> compute -> finish, fenced by the attempt number) and design-progress serves
 the stored result. The API never reads a raster for it. docs/design.md "Change between surveys".
@@ -76,7 +76,7 @@ def _view(job: DesignChangeJob) -> dict:
     return {"id": job.id, "state": job.state, "result": job.result, "error": job.error}
 
 
-def _queue(s, site_id: str, inputs: dict, key: str, settings=None) -> tuple[dict, tuple | None]:
+def queue_job(s, site_id: str, inputs: dict, key: str, settings=None) -> tuple[dict, tuple | None]:
     """In session ``s``: the job for ``key`` created queued, or (with ``settings``) a stale one queued again; (its
     view, the message to send after commit or None)."""
     job = s.scalar(select(DesignChangeJob).where(DesignChangeJob.key == key))
@@ -98,30 +98,6 @@ def _queue(s, site_id: str, inputs: dict, key: str, settings=None) -> tuple[dict
     return _view(job), None
 
 
-def queue_after_run(s, run: Run) -> list[tuple]:
-    """When a run whose design step succeeded ends: the changes design-progress will show for its site, queued ahead
-    (jobs that exist are left as they are); the messages to send after commit."""
-    from ..models import RunStep, SiteDesign
-    from .designs import design_key, progress_entries
-
-    step = s.scalar(select(RunStep).where(RunStep.run_id == run.id, RunStep.name == "design",
-                                          RunStep.state == "succeeded"))
-    d = s.get(SiteDesign, run.site_id)
-    if step is None or d is None or not d.area or not isinstance(step.summary, dict) or step.summary.get("skipped"):
-        return []
-    entries, _ = progress_entries(s, run.site_id, design_key(d))
-    msgs = []
-    for prev, cur in zip(entries, entries[1:]):
-        try:
-            inputs = pair_inputs(s, prev, cur, d.area)
-        except ValueError:   # a run without its files: design-progress shows the totals with the reason
-            continue
-        _, msg = _queue(s, run.site_id, inputs, job_key(inputs))
-        if msg:
-            msgs.append(msg)
-    return msgs
-
-
 def request_changes(ctx: Ctx, site_id: str, pairs: list[dict], database=None) -> dict[str, dict]:
     """The stored jobs of these pairs (pair_inputs), by job_key: {id, state, result, error}. A pair without one is
     queued (and a stale one queued again): written through ``database`` (its own transaction, committed and its
@@ -136,14 +112,14 @@ def request_changes(ctx: Ctx, site_id: str, pairs: list[dict], database=None) ->
         return out
     if database is None:
         for k in need:
-            out[k], msg = _queue(ctx.db, site_id, keys[k], k, ctx.settings)
+            out[k], msg = queue_job(ctx.db, site_id, keys[k], k, ctx.settings)
             if msg:
                 ctx.outbox.append(msg)
         return out
     msgs = []
     with database.session() as s:
         for k in need:
-            out[k], msg = _queue(s, site_id, keys[k], k, ctx.settings)
+            out[k], msg = queue_job(s, site_id, keys[k], k, ctx.settings)
             if msg:
                 msgs.append(msg)
     from ..core.queue import send_design_change

@@ -363,3 +363,26 @@ def design_progress(ctx: Ctx, site_id: str, database=None) -> dict:
                            "survey before, surface against surface inside the design area (method), "
                            "remaining_cut_m3 / remaining_fill_m3 still to do",
             "surveys": entries, "not_compared": missing, "changes_pending": pending}
+
+
+def queue_changes_after_run(s, run: Run) -> list[tuple]:
+    """When a run whose design step succeeded ends: the changes design-progress will show for its site, queued ahead
+    (jobs that exist are left as they are); the messages to send after commit."""
+    from . import design_changes
+
+    step = s.scalar(select(RunStep).where(RunStep.run_id == run.id, RunStep.name == "design",
+                                          RunStep.state == "succeeded"))
+    d = s.get(SiteDesign, run.site_id)
+    if step is None or d is None or not d.area or not isinstance(step.summary, dict) or step.summary.get("skipped"):
+        return []
+    entries, _ = progress_entries(s, run.site_id, design_key(d))
+    msgs = []
+    for prev, cur in zip(entries, entries[1:]):
+        try:
+            inputs = design_changes.pair_inputs(s, prev, cur, d.area)
+        except ValueError:   # a run without its files: design-progress shows the totals with the reason
+            continue
+        _, msg = design_changes.queue_job(s, run.site_id, inputs, design_changes.job_key(inputs))
+        if msg:
+            msgs.append(msg)
+    return msgs
