@@ -284,8 +284,47 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     if pp.kind == "exif-gps":
         warnings.append("camera positions from the photos' navigation-grade EXIF GPS (metre level): without control "
                         "points the survey's absolute position is only as good as these positions (see "
-                        "absolute_accuracy in the summary); its shape and volumes do not depend on it")
+                        "absolute_accuracy in the summary); its shape does not depend on them, but its level does: "
+                        "heights that drift tilt the block, and a tilted block tilts the DSM and changes volumes, "
+                        "unless it is levelled (exif_heights in the summary) or tied by control points")
     return gnss
+
+
+def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list) -> dict | None:
+    """EXIF GPS heights checked against the SfM block (photo/exif_heights.py); where they drift, the heights
+    given to the adjustment (``gnss_enu``, in place) are the levelled block's at the EXIF heights' mean level, and
+    the horizontal sigmas are raised to the positions' scatter, so that the block is levelled on the nadir-axis
+    assumption instead of tilted by the drift."""
+    from ..photo.exif_heights import check_exif_heights
+    from ..photo.photo_positions import EXIF_GPS_SIGMA_M
+
+    by_name = rec.image_by_name()
+    names = [n for n in gnss.names if n in gnss_enu and n in by_name]
+    if len(names) < 6:
+        return None
+    t_of = dict(zip(gnss.names, np.asarray(gnss.trigger_gps_time_s, float)))
+    t = np.array([t_of[n] for n in names])
+    source = "EXIF times"
+    if not np.all(np.isfinite(t)) or len(np.unique(t)) < len(t) // 2:
+        t, source = np.array([sorted(names).index(n) for n in names], float), "photo order (no usable EXIF times)"
+    C = np.array([by_name[n].centre for n in names])
+    A = np.array([by_name[n].R_cam_from_world[2] for n in names])     # the optical axis (camera +z) in the model
+    X = np.array([gnss_enu[n][0] for n in names])
+    out = check_exif_heights(C, A, X, t, EXIF_GPS_SIGMA_M[1], source, sigma_h_m=EXIF_GPS_SIGMA_M[0])
+    if out.get("inconsistent"):
+        h, sig = out.pop("height_enu_m"), float(out["sigma_v_m"])
+        sig_h = float(out["sigma_h_m"])
+        for k, n in enumerate(names):
+            enu, vel, cov, st, tt = gnss_enu[n]
+            enu, cov = np.array(enu, float), np.array(cov, float)
+            enu[2] = h[k]
+            cov[2, :], cov[:, 2] = 0.0, 0.0
+            cov[2, 2] = sig ** 2
+            if sig_h > EXIF_GPS_SIGMA_M[0]:
+                cov[:2, :2] *= (sig_h / EXIF_GPS_SIGMA_M[0]) ** 2
+            gnss_enu[n] = (enu, vel, cov, st, tt)
+        warnings.append(out["text"])
+    return out
 
 
 def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tuple[dict[str, int], str]:
@@ -747,6 +786,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         warnings.append(f"{len(unregistered)} image(s) not registered by SfM: {', '.join(unregistered[:10])}"
                         + (" ..." if len(unregistered) > 10 else ""))
     cameras = _camera_groups(rec, image_dir)
+    exif_heights = _exif_heights(rec, gnss, gnss_enu, warnings) if gnss is not None and gnss.kind == "exif-gps" else None
     shutters = [_shutter_flag(image_dir / c["first_image"], opts.rolling_shutter, opts.readout_s) for c in cameras]
 
     t0 = time.perf_counter()
@@ -754,6 +794,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     result = _adjust(opts, frame, rec, control, gnss_enu, warnings,
                      rolling=[bool(sh["rolling_shutter"]) for sh in shutters], image_dir=image_dir,
                      flight_prior=flight_prior)
+    result.heights_from_block = bool(exif_heights and exif_heights.get("inconsistent"))
     _shutter_outcomes(shutters, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
@@ -766,6 +807,12 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
                                                       _ppk_summary(out).get("base_position"))
     summary["inputs"] = found.summary()
     summary["target_refinement"] = target_refinement
+    if exif_heights is not None:
+        summary["exif_heights"] = exif_heights
+        if exif_heights.get("inconsistent") and isinstance(summary["absolute_accuracy"], dict):
+            summary["absolute_accuracy"]["text"] += (
+                f"; the photos' heights drift, so the block's level rests instead on the assumption that the cameras' "
+                f"mean optical axis is nadir (tilt sigma {exif_heights['level_sigma_deg']:g} deg; exif_heights)")
     summary["rolling_shutter"] = dict(shutters[0])
     if len(shutters) > 1:
         summary["rolling_shutter"]["cameras"] = shutters
@@ -826,6 +873,7 @@ class _Adjusted:
     readout_s: np.ndarray = field(default_factory=lambda: np.zeros(1))
     readout_sigma_s: list = field(default_factory=lambda: [None])
     doming: dict | None = None       # the block's bending against the camera positions (doming.py)
+    heights_from_block: bool = False  # the camera heights were the levelled SfM block's (exif_heights.py)
     # per-flight GNSS offsets, where modelled: their covariance (3F, 3F) and each camera centre's with them
     flight_offset_cov_m2: np.ndarray | None = None
     camera_flight_cov_m2: np.ndarray | None = None
@@ -1277,10 +1325,15 @@ def _doming(adj: _Adjusted, control: ControlData, frame: ProjectFrame, checks: R
         enu = dict(zip([r.name for r in pts], points_to_enu([control.points[r.name] for r in pts], frame)))
         out["check_points"] = fit_doming(np.array([enu[r.name][:2] for r in pts]), [r.dz_m for r in pts],
                                          None, "check points (triangulated - surveyed)")
-    texts = [describe(d) for d in (out["camera_positions"], out["check_points"]) if d]
+    if out["camera_positions"] and adj.heights_from_block:   # not an independent check: no warning from it
+        out["camera_positions"]["note"] = ("against camera heights taken from the levelled SfM block (the EXIF heights "
+                                           "drift: exif_heights), not independent ones: it compares the adjusted block with "
+                                           "the SfM block's own shape")
+    texts = [describe(d) + (" (against heights from the levelled block: not a check)" if d.get("note") else "")
+             for d in (out["camera_positions"], out["check_points"]) if d]
     out["text"] = "; ".join(texts) if texts else "doming: not estimated (fewer than 6 camera positions or check points)"
     for d in (out["camera_positions"], out["check_points"]):
-        if d and d["significant"]:
+        if d and d["significant"] and not d.get("note"):
             warnings.append(f"{describe(d)}: the block is bent; its DSM carries a bowl of about this size. Causes: a "
                             "wrong or held lens distortion, a self-calibration on one flying height with weak camera "
                             "positions. Remedies: a calibrated camera, oblique images or cross lines, control points "

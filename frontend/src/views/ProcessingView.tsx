@@ -241,7 +241,8 @@ function StepSummary({ step }: { step: Step }) {
     if (typeof s.absolute_accuracy?.text === "string") lines.push(s.absolute_accuracy.text);
     if (typeof s.doming?.text === "string") lines.push(s.doming.text);
     const warnings: string[] = Array.isArray(s.warnings) ? s.warnings.filter((w: unknown) => typeof w === "string") : [];
-    const notable = warnings.filter((w) => w.includes(": left out") || w.startsWith("doming"));
+    const notable = warnings.filter((w) => w.includes(": left out") || w.startsWith("doming")
+      || w.startsWith("EXIF heights inconsistent"));
     return (
       <div class="small step-georef-summary">
         {bits.length ? <div>{bits.join(" · ")}</div> : null}
