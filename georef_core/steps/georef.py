@@ -965,6 +965,30 @@ def select_tie_points(xyz_enu_m: np.ndarray, track_length: np.ndarray, max_point
     return np.sort(order[np.argsort(key, kind="stable")[:max_points]])
 
 
+CONTROL_SIGMA0_P = 0.001   # a control variance factor above its chi-square quantile at this level is flagged
+
+
+def control_accuracy_warning(sigma0: dict, n_control: int) -> str | None:
+    """A warning when the control points' a-posteriori variance factor says their coordinates (or their
+    identification in the images) are much worse than the survey accuracy they are weighted with, else None.
+    The factor's square is a chi-square over its redundancy divided by it; the redundancy is at most 3 per point
+    and less where the points also fix the datum, so the quantile is taken with n_control degrees of freedom
+    (the larger threshold: a factor above it is beyond chance whatever the redundancy between n and 3n)."""
+    s = sigma0.get("control") if isinstance(sigma0, dict) else None
+    if s is None or n_control < 1 or not np.isfinite(s):
+        return None
+    from scipy.stats import chi2
+
+    limit = float(np.sqrt(chi2.ppf(1.0 - CONTROL_SIGMA0_P, n_control) / n_control))
+    if s <= limit:
+        return None
+    return (f"the control points fit the block {s:.1f} times worse than their stated survey accuracy (variance "
+            f"factor sigma0 {s:.2f}, above {limit:.2f}, the {100 * (1 - CONTROL_SIGMA0_P):.1f} % bound for "
+            f"{n_control} point(s)): their coordinates are less accurate than assumed (e.g. hand-held GPS instead of "
+            "a survey), or some are misidentified in the images; the stated accuracy of the result rests on them, "
+            "so check them (the residual table names each)")
+
+
 def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData, gnss_enu: dict, warnings: list,
             rolling: bool | list = False, image_dir: Path | None = None, flight_prior: dict | None = None) -> _Adjusted:
     # the camera groups: the SfM's cameras of the registered images, in camera-id order (camera 1 is the
@@ -1157,6 +1181,9 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                       "rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "tie_observation_outliers": int(res.obs_outlier.sum()), "gnss_outliers": int(res.gnss_outlier.sum()),
                       "control_points_used": gcps})
+        w = control_accuracy_warning(res.sigma0, len(gcps) if gcps else 0)
+        if w:
+            warnings.append(w)
         if res.flight_offset_enu_m is not None:
             flight_cov, cam_flight_cov = res.flight_offset_cov_m2, res.camera_flight_cov_m2
             stats["flight_offsets"] = _flight_offsets_summary(
@@ -1205,6 +1232,9 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         stats.update({"rms_reprojection_px": round(res.rms_reprojection_px, 3), "sigma0": res.sigma0,
                       "lever_delay_sigma0": fit.sigma0, "control_points_used": gcps,
                       "gnss_outliers": int(fit.outlier.sum())})
+        w = control_accuracy_warning(res.sigma0, len(gcps))
+        if w:
+            warnings.append(w)
         isig = _intrinsics_sigmas(res, G, fisheye)
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb

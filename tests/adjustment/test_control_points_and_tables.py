@@ -234,3 +234,17 @@ def test_upload_check_and_steps_read_gcp_list_and_events_alike(tmp_path):
     assert err.value.line == 3
     with _pytest.raises(ValueError, match="line 3: event time 'inf' is not a finite number"):
         parse_events_csv(bad)
+
+
+def test_control_accuracy_warning_follows_the_chi_square_bound():
+    """The control points' variance factor is flagged beyond its 99.9 % chi-square bound for n points (1.72
+    for 10 points, 3.29 for one), and not below it nor without control."""
+    from georef_core.steps.georef import control_accuracy_warning
+
+    assert control_accuracy_warning({"control": 1.6}, 10) is None
+    w = control_accuracy_warning({"control": 1.8}, 10)
+    assert w is not None and "1.72" in w and "10 point(s)" in w
+    assert control_accuracy_warning({"control": 3.2}, 1) is None
+    assert control_accuracy_warning({"control": 3.4}, 1) is not None
+    assert control_accuracy_warning({"control": 50.0}, 0) is None
+    assert control_accuracy_warning({"image": 1.0}, 5) is None

@@ -48,4 +48,6 @@ def test_copr_blunder_named_and_check_table(copr_survey, tmp_path):
     # the control points' variance factor says how good their coordinates really are (metres, not the
     # a-priori centimetre): an honest adjustment does not pretend
     assert s["adjustment"]["sigma0"]["control"] > 20
+    # ... and the run says it in words (georef.control_accuracy_warning)
+    assert any("control points fit the block" in w for w in s["warnings"]), s["warnings"]
     assert (out / "residuals.csv").read_text().splitlines()[0].startswith("point,role,dx_m")
