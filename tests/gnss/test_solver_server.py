@@ -198,9 +198,11 @@ def test_ctrl_c_reaches_the_solve_and_a_dying_server_falls_back(tmp_path):
     ref.parent.mkdir()
     # automatic start: with no server listening the command solves in its own process and starts one
     assert georef(["gnss", "solve", *FILES, "--out", str(ref)], run_dir, switch="auto").returncode == 0
-    # the server's start and its spare's warm-up (two small simulated solves) share the CPU with the rest
-    # of the suite (a clean-clone CI run at load ~9 timed out at 60 s; 3 s on a quiet machine)
-    info = _wait(lambda: _spare_ready(run_dir), 300.0, run_dir)
+    # the served solves below need the server, not its warmed spare (a request that finds no spare ready gets a
+    # plain fork): in two clean-clone CI runs of the whole suite the auto-started server's spare was not ready
+    # after 60 and 300 s, while this test alone takes 3-7 s, also with six busy loops beside it (not explained:
+    # docs/gnss.md "Known issue"); the spare's own test is test_served_solve_is_byte_identical_to_in_process
+    info = _wait(lambda: (lambda i: i if i.get("running") and i.get("pid") else None)(status(run_dir)), 120.0, run_dir)
     assert info["requests"] == 0
     fifo = tmp_path / "t.pos"
     os.mkfifo(fifo)
