@@ -63,12 +63,10 @@ def served_exit_code(argv: list[str]) -> int | None:
 
 def connect(folder, digest: str, timeout_s: float = 2.0):
     path = ss.socket_path(folder, digest)
-    if len(os.fsencode(path)) > ss.SOCKET_PATH_MAX:
-        return None
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
         sock.settimeout(timeout_s)
-        sock.connect(os.fspath(path))
+        ss.unix_address(path, sock.connect)
     except OSError:
         sock.close()
         return None

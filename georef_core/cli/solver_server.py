@@ -270,7 +270,7 @@ class Server:
         self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o177)
         try:
-            self.listener.bind(os.fspath(self.path))
+            ss.unix_address(self.path, self.listener.bind)
         finally:
             os.umask(old)
         self.listener.listen(16)
@@ -564,7 +564,12 @@ def main(argv: list[str] | None = None) -> int:
                f"{time.process_time() - c0:.2f} s")
     signal.signal(signal.SIGTERM, lambda *a: setattr(server, "stopping", True))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    server.bind()
+    try:
+        server.bind()
+    except OSError as exc:   # said in the log: the clients then solve in their own processes
+        server.say(f"cannot listen on {server.path}: {exc}")
+        shutil.rmtree(warm_dir, ignore_errors=True)
+        return 1
     server.say(f"listening on {server.path}")
     server.start_spare()
     try:

@@ -110,6 +110,22 @@ def socket_path(folder: Path, digest: str) -> Path:
     return folder / f"gnss-{digest[:24]}.sock"
 
 
+def unix_address(path: Path, call) -> None:
+    """``call(address)`` (a socket's bind or connect) with ``path``, or, where the path is longer than an AF_UNIX
+    address holds (SOCKET_PATH_MAX: a deep temporary or home folder), with its name while the working folder is
+    the socket's folder (restored after, also on error)."""
+    if len(os.fsencode(path)) <= SOCKET_PATH_MAX:
+        call(os.fspath(path))
+        return
+    here = os.open(".", os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.chdir(path.parent)
+        call(path.name)
+    finally:
+        os.fchdir(here)
+        os.close(here)
+
+
 def lock_path(folder: Path, digest: str) -> Path:
     return folder / f"gnss-{digest[:24]}.lock"
 
