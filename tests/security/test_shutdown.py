@@ -25,6 +25,19 @@ POINTS = (b"name,easting_m,northing_m,ellipsoidal_height_m,role\nT1,679508.0,388
 STACK_TRACE_WORDS = (b"*** SIGTERM", b"stack trace", b"Traceback", b"Aborted at")
 
 
+def failing_georef_survey(p, email: str) -> tuple[Api, str]:
+    """A user, a site and a survey on platform ``p`` whose georef step starts, loads pycolmap and fails (a
+    control point and photos without positions); (the user's Api, the survey id)."""
+    add_user(p, email)
+    a = Api(p, email)
+    s = a.post("/api/v1/sites", json={"name": "Stop", "crs": "EPSG:32653"}).json()
+    survey = a.post(f"/api/v1/sites/{s['id']}/surveys", json={"name": "F"}).json()["id"]
+    assert upload_bytes(a, survey, "points.csv", POINTS, kind="points").status_code == 200
+    for i in range(3):
+        assert upload_bytes(a, survey, f"IMG_{i}.jpg", _jpeg(i), kind="image").status_code == 200
+    return a, survey
+
+
 def _jpeg(seed: int) -> bytes:
     import io
 
@@ -102,13 +115,7 @@ def site(tmp_path_factory):
         pytest.skip("needs Linux /proc")
     tmp = tmp_path_factory.mktemp("shutdown")
     p = make_platform(tmp, "embedded")
-    add_user(p, "stop@example.org")
-    a = Api(p, "stop@example.org")
-    s = a.post("/api/v1/sites", json={"name": "Stop", "crs": "EPSG:32653"}).json()
-    survey = a.post(f"/api/v1/sites/{s['id']}/surveys", json={"name": "F"}).json()["id"]
-    assert upload_bytes(a, survey, "points.csv", POINTS, kind="points").status_code == 200
-    for i in range(3):     # photos without positions: the georef step starts, loads pycolmap and fails
-        assert upload_bytes(a, survey, f"IMG_{i}.jpg", _jpeg(i), kind="image").status_code == 200
+    a, survey = failing_georef_survey(p, "stop@example.org")
     yield p, a, survey, tmp
     close_platform(p)
 

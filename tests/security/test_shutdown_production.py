@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from ..backend.platform_helpers import Api, add_user, close_platform, have_postgres, have_redis, make_platform, upload_bytes, wait_run
-from .test_shutdown import POINTS, _georef_run, _has_pycolmap, _jpeg, _procs
+from ..backend.platform_helpers import close_platform, have_postgres, have_redis, make_platform, wait_run
+from .test_shutdown import _georef_run, _has_pycolmap, _procs, failing_georef_survey
 
 REPO = Path(__file__).resolve().parents[2]
 STACK_TRACE_WORDS = (b"Traceback", b"Fatal Python error", b"Stack (most recent call", b"*** SIGTERM",
@@ -147,13 +147,7 @@ def production(tmp_path_factory):
     # queues of this test's own (the Redis db number is shared with other tests of the same process group)
     p = make_platform(tmp, "postgres", queue=f"stop-{os.getpid()}")
     try:
-        add_user(p, "stop-prod@example.org")
-        a = Api(p, "stop-prod@example.org")
-        s = a.post("/api/v1/sites", json={"name": "Stop", "crs": "EPSG:32653"}).json()
-        survey = a.post(f"/api/v1/sites/{s['id']}/surveys", json={"name": "F"}).json()["id"]
-        assert upload_bytes(a, survey, "points.csv", POINTS, kind="points").status_code == 200
-        for i in range(3):     # photos without positions: the georef step starts, loads pycolmap and fails
-            assert upload_bytes(a, survey, f"IMG_{i}.jpg", _jpeg(i), kind="image").status_code == 200
+        a, survey = failing_georef_survey(p, "stop-prod@example.org")
         yield p, a, survey, tmp
     finally:
         close_platform(p)
