@@ -27,7 +27,7 @@ class Comparison:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
 
 
-def _ecef(p: PosFile) -> np.ndarray:
+def pos_ecef_m(p: PosFile) -> np.ndarray:
     return geodetic_to_ecef_m(np.radians(p.lat_deg), np.radians(p.lon_deg), p.height_m)
 
 
@@ -55,8 +55,8 @@ def compare_pos(ours: PosFile, ref: PosFile, time_tolerance_s: float = 0.02) -> 
     n_bad = 0
     bad_t: tuple = ()
     if both.any():
-        a = _ecef(ours)[best[both]]
-        b = _ecef(ref)[both]
+        a = pos_ecef_m(ours)[best[both]]
+        b = pos_ecef_m(ref)[both]
         lat0, lon0 = np.radians(ref.lat_deg[both][0]), np.radians(ref.lon_deg[both][0])
         enu = (a - b) @ ecef_to_enu_rotation(lat0, lon0).T
         h = np.hypot(enu[:, 0], enu[:, 1])

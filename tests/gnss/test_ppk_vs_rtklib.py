@@ -18,7 +18,7 @@ from georef_core.gnss.frames import ecef_to_enu_rotation, ecef_to_geodetic, geod
 from tests.gnss.judged_comparison import judge_fixes, positions_on_epochs
 from georef_core.gnss.ppk import solve_files
 from georef_core.gnss.rtk_options import read_rtklib_conf
-from tests.gnss.solution_compare import compare_pos, fixed_position_at
+from tests.gnss.solution_compare import compare_pos, fixed_position_at, pos_ecef_m
 from georef_core.gnss.solution_io import read_pos, write_pos
 
 from .rtklib_cases import reference_cases, reverse_passes, reversed_conf, run_demo5, shared_gnss_dir
@@ -54,10 +54,6 @@ def _judged(case, ours, ref, tmp_path):
     return judge_fixes(data, opts, ours, ref, **reverse), data, opts
 
 
-def _ecef(pos) -> np.ndarray:
-    return geodetic_to_ecef_m(np.radians(pos.lat_deg), np.radians(pos.lon_deg), pos.height_m)
-
-
 def _ids(cases):
     return [f"{c[0].split('_')[0]}-{c[1]}" for c in cases]
 
@@ -75,9 +71,9 @@ def test_static_baselines_match_demo5(case, tmp_path):
     # the rovers are static: the median of demo5's fixes is the truth to a few mm. Fix rates count right
     # fixes (within 5 cm of it): on GEONET's last epochs (five satellites) demo5 flags a position 10.7 cm
     # off as fixed, which ours outputs as float (its 3-D sigma is 17 cm: gnss/fix_precision.py)
-    truth = np.median(_ecef(ref)[ref.status == 1], axis=0)
-    ref_right = (ref.status == 1) & (np.linalg.norm(_ecef(ref) - truth, axis=1) <= 0.05)
-    ours_err = np.linalg.norm(_ecef(ours) - truth, axis=1)
+    truth = np.median(pos_ecef_m(ref)[ref.status == 1], axis=0)
+    ref_right = (ref.status == 1) & (np.linalg.norm(pos_ecef_m(ref) - truth, axis=1) <= 0.05)
+    ours_err = np.linalg.norm(pos_ecef_m(ours) - truth, axis=1)
     assert not np.any((ours.status == 1) & (ours_err > 0.05)), ours_err[ours.status == 1].max()
     assert c.fix_rate >= ref_right.mean(), (c.as_dict(), ref_right.mean())
     assert c.n_both_fixed >= 0.9 * len(ref.time_s) * c.fix_rate_ref
