@@ -155,9 +155,29 @@ def _volumes(tmp: Path, data: dict) -> None:
     polygon_coverage(ring, window).covered_area_cells()
 
 
+def _tiles(tmp: Path, data: dict) -> None:
+    """A 300 x 300 px RGB orthophoto with overviews written as a tiled KMZ (the super-overlay's tile drawer)."""
+    import numpy as np
+    import rasterio
+    from affine import Affine
+    from rasterio.enums import Resampling
+
+    from .deliverables.kmz_writer import write_kmz
+
+    n = 300
+    rgb = np.full((3, n, n), 120, np.uint8)
+    rgb[:, :, :20] = 0                       # some no-data: PNG tiles as well as JPEG
+    p = tmp / "ortho.tif"
+    with rasterio.open(p, "w", driver="GTiff", width=n, height=n, count=3, dtype="uint8", crs="EPSG:32633",
+                       transform=Affine(0.05, 0, 512_000.0, 0, -0.05, 5_123_000.0), nodata=0) as ds:
+        ds.write(rgb)
+        ds.build_overviews([2, 4], Resampling.average)
+    write_kmz(p, tmp / "ortho.kmz", tile_threshold_px=128)
+
+
 @dataclass(frozen=True)
 class Stage:
-    group: str                    # "gnss" (what a solve calls) | "gnss-checks" (bench, tests) | "volumes"
+    group: str                    # "gnss" (what a solve calls) | "gnss-checks" (bench, tests) | "volumes" | "tiles"
     label: str
     entry_points: tuple[str, ...]  # kernels this stage calls from Python ("module.function")
     run: Callable[[Path, dict], None]
@@ -182,6 +202,9 @@ STAGES: tuple[Stage, ...] = (
     Stage("volumes", "volumes (coverage, TIN base, integration, change)", (
         _V + "coverage._ring_deposits", _V + "coverage._merge_sorted", _V + "coverage._expand",
         _V + "base_surfaces._rasterize_triangles", _V + "integration._integrate_rows"), _volumes),
+    Stage("tiles", "tiled KMZ (the tile drawer's warp)", (
+        "georef_core.tiles.warp_kernel.bilinear_4_sample", "georef_core.tiles.warp_kernel.premultiplied_to_rgba"),
+        _tiles),
 )
 
 
@@ -323,7 +346,7 @@ def drop_stale_callers(dispatchers: dict | None = None) -> list[str]:
 
 # ------------------------------------------------------------------------------------------ running
 
-GROUPS = ("gnss", "gnss-checks", "volumes")
+GROUPS = ("gnss", "gnss-checks", "volumes", "tiles")
 
 
 def warm_up(groups=GROUPS, progress: Callable[[str, int, int], None] | None = None) -> dict:

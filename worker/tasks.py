@@ -15,6 +15,7 @@ like a step. The last part queues the step again; that claim merges the parts an
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -509,6 +510,9 @@ def run_part(self, run_id: str, step: str, index: int) -> str:
 def reap_stale_steps() -> int:
     settings, db, storage = _env()
     msgs = jobs.reap(db, settings.step_lease_s, settings.requeue_queued_after_s)
+    from backend.services import design_changes
+
+    msgs += design_changes.reap(db, settings)   # design-change jobs: stale heartbeat / lost message
     _send(settings, db, storage, msgs)
     return len(msgs)
 
@@ -540,6 +544,19 @@ def deliver_webhook(self, delivery_id: str) -> str:
         raise self.retry(exc=exc, countdown=min(3600, 2 ** self.request.retries * 5))
 
 
+@dataclasses.dataclass(frozen=True)
+class _DesignChangeClaim:
+    job_id: str
+    attempt: int
+    step: str = "design-change"   # _Liveness names its thread after it
+
+
+def _design_change_heartbeat(db, claim: _DesignChangeClaim) -> bool:
+    from backend.services import design_changes
+
+    return design_changes.heartbeat(db, claim.job_id, claim.attempt)
+
+
 def execute_design_change(job_id: str) -> str:
     """Claim and compute one change between two surveys of a design (backend/services/design_changes); the
     result or the error (a file named, as for steps) stored on the job. Raises only transient errors."""
@@ -553,8 +570,13 @@ def execute_design_change(job_id: str) -> str:
         return "skipped: not queued"
     inputs, attempt = claimed
     work = settings.resolved_work_dir() / "design-changes"
+    # a heartbeat thread as a step's (every step_lease_s / 4): a job whose heartbeat stops is queued again after
+    # step_lease_s, however long a live one runs; a beat refused (the job taken over) only stops the beats: the
+    # result is then not recorded (finish is fenced by the attempt)
+    beat = _DesignChangeClaim(job_id, attempt)
     try:
-        result = design_changes.compute(storage, inputs, work)
+        with _Liveness(db, beat, settings.step_lease_s, heartbeat=_design_change_heartbeat):
+            result = design_changes.compute(storage, inputs, work)
     except TRANSIENT:
         with db.session() as s:   # back to the queue for the retry
             from sqlalchemy import update
@@ -581,7 +603,7 @@ def design_change(self, job_id: str) -> str:
         return execute_design_change(job_id)
     except TRANSIENT as exc:
         if self.request.retries >= settings.task_max_retries:
-            return "gave up (the next design-progress request re-sends it)"
+            return "gave up (the reaper or the next design-progress request re-sends it)"
         raise self.retry(exc=exc, countdown=min(60, 2 ** self.request.retries))
 
 

@@ -96,6 +96,6 @@ def send_design_change(settings: Settings, job_id: str) -> bool:
         client_for(settings).send_task(DESIGN_CHANGE_TASK, args=[job_id], queue=settings.default_queue, retry=True,
                                        retry_policy={"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5})
         return True
-    except Exception as exc:   # broker down: the job stays queued; the next design-progress request re-sends it
+    except Exception as exc:   # broker down: the job stays queued; the reaper (or a request) re-sends it
         log.warning("could not send design change %s (%s); it will be re-sent", job_id, exc)
         return False

@@ -126,4 +126,6 @@ class DesignChangeJob(IdMixin, Base):
     error: Mapped[str | None] = mapped_column(Text, default=None)
     queued_at: Mapped[datetime] = mapped_column(default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column(default=None)
+    # the running attempt's worker proves itself alive (every step_lease_s / 4); older than step_lease_s: requeued
+    heartbeat_at: Mapped[datetime | None] = mapped_column(default=None)
     finished_at: Mapped[datetime | None] = mapped_column(default=None)

@@ -1,14 +1,23 @@
 """The change between two surveys of a site's design, surface against surface, as a queued job whose state is in
 the database (table design_changes): design-progress asks for it (request_changes; a row per pair of design
 results, area and common-bias figure, queued once, its message sent after commit), a worker computes it
-(worker/tasks.design_change: claim -> compute -> finish, fenced by the attempt number) and design-progress serves
-the stored result. The API never reads a raster for it. docs/design.md "Change between surveys".
+(worker/tasks.design_change: claim -> compute -> finish, fenced by the attempt number, a heartbeat thread beating
+meanwhile as for a step) and design-progress serves the stored result. A running job whose heartbeat is older than
+settings.step_lease_s (its worker lost) is queued again, by the next request or the reaper; a queued one older than
+requeue_queued_after_s (its message lost) is sent again. The API never reads a raster for it. docs/design.md
+"Change between surveys".
 
 The bias common to both surveys (georef_core.design.surface_change ``common_bias_m``): when both runs read the same
 control-point files (identical gcp/ checksums), each block's vertical offset absorbs the same mean error of those
 n control heights: common_bias_m = CONTROL_POINT_SIGMA_V_M / sqrt(n) (the points' errors independent of each
 other; sigma the vertical survey accuracy georef_core assigns a surveyed point, the point files carry none).
-Different or no control: 0 (the surveys' biases independent)."""
+A shared base position (two surveys without control points whose camera positions are PPK against the same base
+position: the gnss steps' base_position_ecef_m within BASE_POSITION_MATCH_M of each other and the same source, the
+georef steps resting on it and on no control point): every PPK position of both surveys is relative to that
+position, so its error is common to both: common_bias_m = the base position's vertical sigma as the gnss step
+states it (an averaged single-point or receiver-fix position), or SURVEYED_BASE_SIGMA_V_M for a position taken as
+surveyed (given in the settings or in the file's header: Georef states no sigma of its own for it). Different or no
+control and no shared base: 0 (the surveys' biases independent)."""
 
 from __future__ import annotations
 
@@ -19,15 +28,19 @@ import tempfile
 from datetime import timedelta
 from pathlib import Path
 
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 
-from ..models import DesignChangeJob, Run, RunOutput
+from ..models import DesignChangeJob, Run, RunOutput, RunStep
 from ..models.base import utcnow
 from .context import Ctx
 
-MODEL_VERSION = 2   # the sigma model (2: common bias and resampling); a new one computes the changes again
+MODEL_VERSION = 3   # the sigma model (2: common bias and resampling; 3: a shared base); a new one computes them again
 CONTROL_POINT_SIGMA_V_M = 0.02   # georef_core.adjustment.control_points.GroundPoint's vertical survey accuracy
+# a base position taken as surveyed (given, or a RINEX header / RTCM station record): the same assumed vertical
+# survey accuracy as a surveyed control point (Georef states none for it, ppk.base_position_basis)
+SURVEYED_BASE_SIGMA_V_M = CONTROL_POINT_SIGMA_V_M
+BASE_POSITION_MATCH_M = 0.001   # two runs' base positions (ECEF) closer than this are the same position
 FILES = ("design/difference.tif", "design/cut_fill.json")
 
 
@@ -42,6 +55,49 @@ def _control(s, run_id: str) -> dict[str, str]:
     return {p: sha for p, sha in inputs.items() if p.startswith("gcp/")}
 
 
+def base_of(gnss_summary: dict | None, georef_summary: dict | None) -> dict | None:
+    """The base position a survey rests on alone, from its gnss and georef steps' summaries: {position_ecef_m,
+    source, sigma_v_m (None: taken as surveyed), text}; None when the georef step used control points, did not
+    rest on PPK positions relative to a base, or either summary lacks what is needed (a skipped gnss step, an
+    older run)."""
+    if not isinstance(gnss_summary, dict) or not isinstance(georef_summary, dict) or gnss_summary.get("skipped"):
+        return None
+    basis = (georef_summary.get("absolute_accuracy") or {}).get("basis") or []
+    kinds = {b.get("kind") for b in basis if isinstance(b, dict)}
+    if "base position" not in kinds or "control points" in kinds:
+        return None
+    pos, bp = gnss_summary.get("base_position_ecef_m"), gnss_summary.get("base_position") or {}
+    try:
+        pos = [float(v) for v in pos]
+    except (TypeError, ValueError):
+        return None
+    if len(pos) != 3 or not all(math.isfinite(v) for v in pos) or not bp.get("source"):
+        return None
+    sigma = bp.get("sigma_enu_m")
+    try:
+        sigma_v = None if sigma is None else float(sigma[2])
+    except (TypeError, ValueError, IndexError):
+        return None
+    return {"position_ecef_m": pos, "source": str(bp["source"]), "sigma_v_m": sigma_v,
+            "text": str(bp.get("text") or bp["source"])}
+
+
+def shared_base(earlier: dict | None, later: dict | None) -> dict | None:
+    """The base position both surveys rest on (base_of of each): the same source and positions within
+    BASE_POSITION_MATCH_M; else None."""
+    if not earlier or not later or earlier["source"] != later["source"]:
+        return None
+    if math.dist(earlier["position_ecef_m"], later["position_ecef_m"]) > BASE_POSITION_MATCH_M:
+        return None
+    return earlier
+
+
+def _base(s, run_id: str) -> dict | None:
+    rows = dict(s.execute(select(RunStep.name, RunStep.summary).where(RunStep.run_id == run_id,
+                                                                      RunStep.name.in_(("gnss", "georef")))).all())
+    return base_of(rows.get("gnss"), rows.get("georef"))
+
+
 def pair_inputs(s, prev: dict, cur: dict, area: dict) -> dict:
     """What the change of ``cur`` against ``prev`` (design-progress entries) is computed from: both runs' design
     files (checksums), the area and the shared control files. ValueError (why) when a run lacks its files."""
@@ -54,6 +110,7 @@ def pair_inputs(s, prev: dict, cur: dict, area: dict) -> dict:
                       "difference": f["design/difference.tif"], "cut_fill": f["design/cut_fill.json"]}
     ce, cl = _control(s, prev["run_id"]), _control(s, cur["run_id"])
     out["control"] = ce if ce and ce == cl else None
+    out["base"] = shared_base(_base(s, prev["run_id"]), _base(s, cur["run_id"])) if out["control"] is None else None
     return out
 
 
@@ -66,10 +123,16 @@ def job_key(inputs: dict) -> str:
 
 
 def _stale(job: DesignChangeJob, settings) -> bool:
-    """Left queued or running longer than settings.requeue_queued_after_s: its message or its worker lost."""
-    since = job.started_at if job.state == "running" else job.queued_at
-    return job.state in ("queued", "running") and since is not None and \
-        since < utcnow() - timedelta(seconds=settings.requeue_queued_after_s)
+    """Queued for longer than settings.requeue_queued_after_s (its message lost), or running with no heartbeat for
+    settings.step_lease_s (its worker lost: a job that runs long while its worker beats is left alone, as a step
+    is; a row claimed before heartbeats existed counts from its start)."""
+    now = utcnow()
+    if job.state == "queued":
+        return job.queued_at is not None and job.queued_at < now - timedelta(seconds=settings.requeue_queued_after_s)
+    if job.state == "running":
+        beat = job.heartbeat_at or job.started_at
+        return beat is not None and beat < now - timedelta(seconds=settings.step_lease_s)
+    return False
 
 
 def _view(job: DesignChangeJob) -> dict:
@@ -136,12 +199,40 @@ def claim(db, job_id: str, worker: str) -> tuple[dict, int] | None:
     """Take a queued job (atomically: UPDATE ... WHERE state = 'queued'): (its inputs, attempt), or None."""
     with db.session() as s:
         res = s.execute(update(DesignChangeJob).where(DesignChangeJob.id == job_id, DesignChangeJob.state == "queued")
-                        .values(state="running", worker=worker, started_at=utcnow(),
+                        .values(state="running", worker=worker, started_at=utcnow(), heartbeat_at=utcnow(),
                                 attempt=DesignChangeJob.attempt + 1))
         if res.rowcount != 1:
             return None
         job = s.get(DesignChangeJob, job_id)
         return dict(job.inputs), job.attempt
+
+
+def heartbeat(db, job_id: str, attempt: int) -> bool:
+    """The worker of ``attempt`` is alive: heartbeat_at = now. False once the job is no longer its (queued again
+    after a stale heartbeat, or claimed by another worker): the worker's result will not be recorded."""
+    with db.session() as s:
+        res = s.execute(update(DesignChangeJob).where(DesignChangeJob.id == job_id, DesignChangeJob.attempt == attempt,
+                                                      DesignChangeJob.state == "running")
+                        .values(heartbeat_at=utcnow()))
+        return res.rowcount == 1
+
+
+def reap(db, settings) -> list[tuple]:
+    """The reaper's share (worker.tasks.reap_stale_steps, every few seconds as for steps): jobs running with no
+    heartbeat for settings.step_lease_s are queued again, jobs queued for settings.requeue_queued_after_s have
+    their message sent again; the messages to send. Safe beside a request doing the same: the claim is atomic."""
+    now = utcnow()
+    with db.session() as s:
+        ids = list(s.scalars(update(DesignChangeJob).where(
+            DesignChangeJob.state == "running",
+            func.coalesce(DesignChangeJob.heartbeat_at, DesignChangeJob.started_at) <
+            now - timedelta(seconds=settings.step_lease_s))
+            .values(state="queued", queued_at=now, worker=None).returning(DesignChangeJob.id)))
+        ids += list(s.scalars(update(DesignChangeJob).where(
+            DesignChangeJob.state == "queued",
+            DesignChangeJob.queued_at < now - timedelta(seconds=settings.requeue_queued_after_s))
+            .values(queued_at=now).returning(DesignChangeJob.id)))
+    return [("design-change", i) for i in ids]
 
 
 def finish(db, job_id: str, attempt: int, result: dict | None = None, error: str | None = None) -> bool:
@@ -154,14 +245,26 @@ def finish(db, job_id: str, attempt: int, result: dict | None = None, error: str
         return res.rowcount == 1
 
 
-def common_bias(storage, control: dict | None, tmp: Path) -> tuple[float, str]:
-    """(1 sigma of the vertical bias common to both surveys, where the figure comes from): module docstring."""
+def common_bias(storage, control: dict | None, tmp: Path, base: dict | None = None) -> tuple[float, str]:
+    """(1 sigma of the vertical bias common to both surveys, where the figure comes from): module docstring.
+    ``control``: the shared control-point files (pair_inputs), ``base``: the shared base position (shared_base)."""
     from georef_core.adjustment.control_points import parse_points_table, read_gcp_list
 
     from ..storage import blob_key
 
+    if not control and base:
+        xyz = ", ".join(f"{v:.3f}" for v in base["position_ecef_m"])
+        if base.get("sigma_v_m") is not None:
+            return float(base["sigma_v_m"]), (
+                f"both surveys PPK against the same base position ({base['source']}: {base['text']}; ECEF {xyz} m) "
+                f"and no control points: its stated vertical sigma {float(base['sigma_v_m']):.3f} m is common to both")
+        return SURVEYED_BASE_SIGMA_V_M, (
+            f"both surveys PPK against the same base position ({base['source']}: {base['text']}; ECEF {xyz} m) "
+            f"and no control points: taken as surveyed, the vertical survey accuracy assumed for a surveyed point "
+            f"({SURVEYED_BASE_SIGMA_V_M} m) is common to both")
     if not control:
-        return 0.0, "the surveys read different (or no) control-point files: their vertical biases independent"
+        return 0.0, ("the surveys read different (or no) control-point files and rest on no common base position: "
+                     "their vertical biases independent")
     names: set[str] = set()
     roles: dict[str, str] = {}
     for path, sha in sorted(control.items()):
@@ -203,7 +306,7 @@ def compute(storage, inputs: dict, work_dir: Path) -> dict:
             acc[which] = SurveyAccuracy.from_cut_fill(doc, where)
             diff[which] = tmp / f"{which}.tif"
             storage.fetch(blob_key(f["difference"]), diff[which], link_ok=True)
-        common, source = common_bias(storage, inputs.get("control"), tmp)
+        common, source = common_bias(storage, inputs.get("control"), tmp, inputs.get("base"))
         try:
             out = surface_change(diff["earlier"], diff["later"], inputs["area"], acc["earlier"], acc["later"],
                                  common_bias_m=common)

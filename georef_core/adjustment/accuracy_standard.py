@@ -15,9 +15,10 @@ What Edition 2 asks and what is done here:
 * the accuracy class: the smallest class of a list of class values (or the user's target class) that the
   product RMSE meets, and whose half the check points' survey RMSE meets (Edition 2: the check points at
   least two times more accurate than the class tested);
-* a statement of compliance ("tested to meet ... for a __ (cm) RMSE_H class") needs at least 30 check
-  points; with fewer, the tested RMSE is stated with the number of check points and explicitly without a
-  claim of compliance.
+* a statement of compliance ("tested to meet ... for a __ (cm) RMSE_H Horizontal Positional Accuracy Class",
+  "... for a __ (cm) RMSE_V Vertical Accuracy Class. NVA accuracy was found to be ...") needs at least 30 check
+  points (the minimum Edition 2 calls for); with fewer, the tested RMSE is stated with the number of check
+  points and explicitly without a claim of compliance.
 
 Only points whose role is "check" count (control points, left out one by one or not, are not independent
 check points)."""
@@ -120,31 +121,35 @@ def _classify(product_cm: float | None, measured_cm: float | None, survey_cm: fl
 
 
 def _statement(component: str, n: int, min_n: int, product_cm, cls, target_cm, survey_cm) -> str:
+    """The sentence of the report. With at least ``min_n`` check points and a class met, Edition 2's statement:
+    "... for a X (cm) RMSE_H Horizontal Positional Accuracy Class. The tested horizontal positional accuracy was
+    found to be RMSE_H = x (cm)." / "... for a X (cm) RMSE_V Vertical Accuracy Class. NVA accuracy was found to be
+    RMSE_V = x (cm)." (the vertical one for non-vegetated terrain, NVA); otherwise our own sentence, which makes no
+    claim of compliance (docs/deliverables.md, "The accuracy statement", for the sources)."""
     sym = "RMSE_H" if component == "horizontal" else "RMSE_V"
-    what = "horizontal positional accuracy" if component == "horizontal" else "vertical positional accuracy"
-    tested = ("horizontal positional accuracy" if component == "horizontal"
-              else "vertical positional accuracy on non-vegetated terrain (NVA)")
+    what = "horizontal positional accuracy" if component == "horizontal" else "vertical accuracy"
+    class_name = ("Horizontal Positional Accuracy Class" if component == "horizontal" else "Vertical Accuracy Class")
     if product_cm is None or n == 0:
         return f"The {what} was not tested: no check point."
-    found = f"The tested {tested} was found to be {sym} = {_fmt_cm(product_cm)} (cm)."
+    found = (f"The tested horizontal positional accuracy was found to be {sym} = {_fmt_cm(product_cm)} (cm)."
+             if component == "horizontal" else f"NVA accuracy was found to be {sym} = {_fmt_cm(product_cm)} (cm).")
     if n < min_n:
-        within = (f" It lies within the {_fmt_class(cls)} (cm) {sym} class; no statement of compliance is made."
+        within = (f" It lies within the {_fmt_class(cls)} (cm) {sym} {class_name}; no statement of compliance is made."
                   if cls is not None else
                   f" No {sym} class {'of ' + _fmt_class(target_cm) + ' (cm) ' if target_cm is not None else ''}"
                   "is met.")
         return (f"This data set was tested against the {STANDARD} using {n} check point{'s' if n != 1 else ''}, "
-                f"fewer than the {min_n} the standard requires for a statement of compliance. {found}{within}")
+                f"fewer than the minimum of thirty (30) the standard calls for. {found}{within}")
     if cls is None:
-        aim = (f"the {_fmt_class(target_cm)} (cm) {sym} {what} class" if target_cm is not None else
-               f"any {sym} {what} class up to {_fmt_class(max(HORIZONTAL_CLASSES_CM if component == 'horizontal' else VERTICAL_CLASSES_CM))} (cm)")
+        aim = (f"the {_fmt_class(target_cm)} (cm) {sym} {class_name}" if target_cm is not None else
+               f"any {sym} {class_name} up to {_fmt_class(max(HORIZONTAL_CLASSES_CM if component == 'horizontal' else VERTICAL_CLASSES_CM))} (cm)")
         why = ""
         if product_cm is not None and target_cm is not None and product_cm <= target_cm + _EPS_CM:
             why = (f" (the check points' own survey, {sym} = {_fmt_cm(survey_cm)} (cm), is not two times more "
                    "accurate than the class)")
         return (f"This data set was tested against the {STANDARD} using {n} check points and does not meet "
                 f"{aim}{why}. {found}")
-    return (f"This data set was tested to meet {STANDARD} for a {_fmt_class(cls)} (cm) {sym} {what} class. "
-            f"{found}")
+    return f"This data set was tested to meet {STANDARD} for a {_fmt_class(cls)} (cm) {sym} {class_name}. {found}"
 
 
 def assess_accuracy(residuals, check_sigma_m=(0.01, 0.02), target_class_cm: tuple | None = None,

@@ -15,7 +15,9 @@
   and a NetworkLink with its Region to each of its 4 children that holds data or leads to some), so a viewer
   loads only the tiles in view at the detail the view needs; doc.kml links the root tile. Memory does not grow
   with the orthophoto: each tile is read by a window of the nearest overview, encoded and written to the zip
-  at once (only the tile keys are kept).
+  at once (only the tile keys are kept). The tiles are drawn by tiles.render.RgbTileDrawer (the raster open
+  once, each tile's warp a kernel over an affine fitted to the exact transformation; render_tile_rgba's result
+  within one grey level).
   Tiles without no-data are JPEG (quality 90), tiles with some PNG (no-data transparent), tiles all no-data
   are left out. A Mercator tile placed by a LatLonBox (linear in latitude) is off by at most
   R x dphi^2 x tan(lat) / 8 inside it (dphi its latitude span): under 3 cm for a 1.2 km tile at 45 deg, a
@@ -203,7 +205,8 @@ def _encode_tile(rgba: np.ndarray) -> tuple[bytes, str] | None:
     return buf.getvalue(), "png"
 
 
-def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tiles: int | None = None) -> dict:
+def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tiles: int | None = None,
+                        fast_tiles: bool = True) -> dict:
     """The orthophoto as a KMZ super-overlay (module description); returns {"tiled": True, "west", "south",
     "east", "north" (the orthophoto's WGS 84 box), "levels", "tiles", "tiles_per_level", "pixel_m" (ground
     pixel of the finest level at the centre)}. ``max_tiles``: None (default) for the zoom that resolves the
@@ -211,9 +214,15 @@ def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tile
 
     Memory is bounded whatever the orthophoto's size: each tile is read from the orthophoto by a window
     (``tiles.render.render_tile_rgba``), encoded and written into the zip at once; only the tile keys and their
-    image type are kept (a few dozen bytes a tile) to write the KML tree at the end."""
+    image type are kept (a few dozen bytes a tile) to write the KML tree at the end.
+
+    ``fast_tiles`` (default): the tiles are drawn by ``tiles.render.RgbTileDrawer`` (the raster kept open, the warp
+    done by a kernel from an affine per tile: about 3.5 times faster, within one grey level of render_tile_rgba);
+    False: by render_tile_rgba, tile by tile (the reference, bench/kmz_super_overlay.py)."""
+    import contextlib
+
     from ..tiles.mercator import ground_pixel_m
-    from ..tiles.render import raster_info, render_tile_rgba
+    from ..tiles.render import RgbTileDrawer, raster_info, render_tile_rgba
 
     src_path = Path(ortho_path)
     info = raster_info(src_path, "rgb")
@@ -227,7 +236,8 @@ def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tile
     part = out_path.with_name(out_path.name + ".part")
     images: dict[tuple[int, int, int], str] = {}      # tile -> image extension: what the KML tree needs
     try:
-        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as zf, \
+                (RgbTileDrawer(src_path, info) if fast_tiles else contextlib.nullcontext()) as drawer:
             # doc.kml first (what KMZ readers open): it links the root, the one tile of the coarsest level
             top_keys = _level_keys(info.lonlat_bounds, levels[0])
             desc_head = f"Georef orthophoto over zoom levels {levels[0]}-{finest}, {pixel_m:.3f} m pixels at the finest"
@@ -239,7 +249,7 @@ def write_super_overlay(ortho_path, out_path, name: str = "Orthophoto", max_tile
             zf.writestr("doc.kml", doc)
             for z in levels:
                 for key in _level_keys(info.lonlat_bounds, z):
-                    rgba = render_tile_rgba(src_path, info, *key)[0]
+                    rgba = drawer.rgba(*key) if drawer is not None else render_tile_rgba(src_path, info, *key)[0]
                     enc = _encode_tile(rgba) if rgba is not None else None
                     if enc is None:
                         continue

@@ -32,10 +32,11 @@ def test_thirty_check_points_hand_computation():
     assert h.product_rmse_cm == pytest.approx(math.sqrt(2.75), abs=1e-9) and h.class_cm == 2.0
     assert v.product_rmse_cm == pytest.approx(math.sqrt(11.25), abs=1e-9) and v.class_cm == 4.0
     assert h.statement == ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital "
-                           "Geospatial Data, Edition 2 (2023) for a 2 (cm) RMSE_H horizontal positional accuracy "
-                           "class. The tested horizontal positional accuracy was found to be RMSE_H = 1.7 (cm).")
-    assert "for a 4 (cm) RMSE_V vertical positional accuracy class" in v.statement
-    assert "(NVA) was found to be RMSE_V = 3.4 (cm)" in v.statement
+                           "Geospatial Data, Edition 2 (2023) for a 2 (cm) RMSE_H Horizontal Positional Accuracy "
+                           "Class. The tested horizontal positional accuracy was found to be RMSE_H = 1.7 (cm).")
+    assert v.statement == ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital "
+                           "Geospatial Data, Edition 2 (2023) for a 4 (cm) RMSE_V Vertical Accuracy Class. NVA "
+                           "accuracy was found to be RMSE_V = 3.4 (cm).")
     assert not a.notes
 
 
@@ -66,8 +67,10 @@ def test_fewer_than_thirty_check_points_make_no_compliance_claim():
     assert a.horizontal.product_rmse_cm == pytest.approx(math.sqrt(2.0), abs=1e-9)
     assert a.vertical.product_rmse_cm == pytest.approx(2.0, abs=1e-9)
     s = a.horizontal.statement
-    assert "using 5 check points, fewer than the 30" in s and "RMSE_H = 1.4 (cm)" in s
-    assert "tested to meet" not in s and s.endswith("within the 1.5 (cm) RMSE_H class; no statement of compliance is made.")
+    assert "using 5 check points, fewer than the minimum of thirty (30) the standard calls for" in s
+    assert "RMSE_H = 1.4 (cm)" in s and "tested to meet" not in s
+    assert s.endswith("within the 1.5 (cm) RMSE_H Horizontal Positional Accuracy Class; no statement of compliance is "
+                      "made.")
     # the same from the table's JSON (residuals.json) and per-point survey sigmas
     b = assess_accuracy(table.to_dict(), check_sigma_m=[(0.003, 0.004)] * 5)
     assert b.horizontal.survey_rmse_cm == pytest.approx(100 * math.sqrt(2) * 0.003, abs=1e-9)

@@ -52,9 +52,10 @@ def worker(site, monkeypatch):
     return tasks
 
 
-def _recorded_run(site, name: str, flown: datetime, difference, accuracy: dict) -> str:
-    """A survey (with CONTROL_CSV) and a succeeded run whose design step recorded ``difference`` and a
-    cut_fill.json stating ``accuracy``."""
+def _recorded_run(site, name: str, flown: datetime, difference, accuracy: dict, control: bool = True,
+                  summaries: dict | None = None) -> str:
+    """A survey (with CONTROL_CSV unless not ``control``) and a succeeded run whose design step recorded
+    ``difference`` and a cut_fill.json stating ``accuracy``; ``summaries``: other steps' summaries, by step."""
     from backend.models import Run, RunOutput, RunStep
     from backend.storage import storage_for
 
@@ -62,7 +63,11 @@ def _recorded_run(site, name: str, flown: datetime, difference, accuracy: dict) 
     r = api.post(f"/api/v1/sites/{site['site']}/surveys", json={"name": name, "flown_at": flown.isoformat()})
     assert r.status_code == 201, r.text
     survey = r.json()["id"]
-    assert upload_bytes(api, survey, "points.csv", CONTROL_CSV).status_code == 200
+    if control:
+        assert upload_bytes(api, survey, "points.csv", CONTROL_CSV).status_code == 200
+    else:   # a run needs a file: the survey's metadata, no control points
+        meta = json.dumps({"project_crs": f"EPSG:{scenes.EPSG}", "points_crs": f"EPSG:{scenes.EPSG}"}).encode()
+        assert upload_bytes(api, survey, "survey.json", meta).status_code == 200
     r = api.post(f"/api/v1/surveys/{survey}/runs", json={"steps": ["design"]})
     assert r.status_code == 201, r.text
     run_id = r.json()["id"]
@@ -75,6 +80,12 @@ def _recorded_run(site, name: str, flown: datetime, difference, accuracy: dict) 
         s.execute(update(RunStep).where(RunStep.run_id == run_id).values(state="succeeded"))
         s.execute(update(RunStep).where(RunStep.run_id == run_id, RunStep.name == "design").values(summary=summary))
         s.execute(update(Run).where(Run.id == run_id).values(state="succeeded"))
+        for step, summary_of_step in (summaries or {}).items():
+            row = s.scalar(select(RunStep).where(RunStep.run_id == run_id, RunStep.name == step))
+            if row is None:
+                s.add(RunStep(run_id=run_id, name=step, position=-1, state="succeeded", summary=summary_of_step))
+            else:
+                row.summary = summary_of_step
         for path, f in (("design/difference.tif", difference), ("design/cut_fill.json", cut_fill)):
             sha, size = storage.put_blob(f)
             s.add(RunOutput(run_id=run_id, step_name="design", path=path, sha256=sha, size=size))
@@ -159,3 +170,99 @@ def test_a_finished_run_queues_the_sites_changes_ahead_of_the_first_view(site, t
     job = next(j for j in _jobs(site) if j.later_run_id == sep)
     assert job.state == "queued" and ("design-change", job.id) in msgs
     assert [m for m in on_run_finished(db, storage, sep) if m[0] == "design-change"] == []
+
+
+def test_a_running_job_is_queued_again_on_a_stopped_heartbeat_not_on_its_age(site, worker, tmp_path, monkeypatch):
+    """A worker that dies mid-job (its heartbeat stops) loses the job after step_lease_s, to the next request or to
+    the reaper, however recently it started; a job running for hours whose worker beats is left alone; the dead
+    attempts' late results are refused (fenced by the attempt number)."""
+    import time
+
+    from backend.models import DesignChangeJob
+    from backend.services import design_changes
+
+    p, api, sid = site["p"], site["api"], site["site"]
+    lease_s = 2.0   # beats every 0.5 s (lease / 4), stale after 2 s
+    monkeypatch.setattr(p.settings, "step_lease_s", lease_s)
+    sc = change_mc.one_seed(7, tmp_path, noise_m=0.0, common_bias_m=0.0, own_bias_m=0.0)
+    acc = {"dsm_sigma_m": 0.02, "vertical_rmse_m": 0.02, "correlation_length_m": 1.0}
+    _recorded_run(site, "October", datetime(2026, 10, 5, tzinfo=timezone.utc), sc["may"], acc)
+    nov = _recorded_run(site, "November", datetime(2026, 11, 2, tzinfo=timezone.utc), sc["june"], acc)
+    assert api.get(f"/api/v1/sites/{sid}/design-progress").status_code == 202
+    job_id = next(j.id for j in _jobs(site) if j.later_run_id == nov)
+
+    def row():
+        with p.db().session(read_only=True) as s:
+            return s.get(DesignChangeJob, job_id)
+
+    def set_times(**values):
+        with p.db().session() as s:
+            s.execute(update(DesignChangeJob).where(DesignChangeJob.id == job_id).values(**values))
+
+    def ago(seconds):
+        return datetime.now(timezone.utc) - timedelta(seconds=seconds)
+
+    # a worker dies 10 s into the job (far less than requeue_queued_after_s): its heartbeat is 3 s old
+    assert design_changes.claim(p.db(), job_id, "dead-host:1")[1] == 1
+    set_times(started_at=ago(10), heartbeat_at=ago(lease_s + 1))
+    assert api.get(f"/api/v1/sites/{sid}/design-progress").status_code == 202
+    j = row()
+    assert (j.state, j.worker, j.attempt) == ("queued", None, 1)
+    # again, found by the reaper this time (no request)
+    assert design_changes.claim(p.db(), job_id, "dead-host:2")[1] == 2
+    set_times(started_at=ago(10), heartbeat_at=ago(lease_s + 1))
+    assert design_changes.reap(p.db(), p.settings) == [("design-change", job_id)]
+    assert design_changes.reap(p.db(), p.settings) == []
+    assert (row().state, row().attempt) == ("queued", 2)
+    assert design_changes.heartbeat(p.db(), job_id, 2) is False
+
+    # a live worker whose job has been running for two hours: its heartbeat thread keeps it
+    real, seen = design_changes.compute, {}
+
+    def long_compute(storage, inputs, work_dir):
+        set_times(started_at=ago(7200), heartbeat_at=ago(7200))
+        time.sleep(4 * lease_s / 4 + 0.5)   # the thread beats at 0.5, 1.0, 1.5, 2.0 s
+        seen["beat_age_s"] = (datetime.now(timezone.utc) - row().heartbeat_at).total_seconds()
+        seen["status"] = api.get(f"/api/v1/sites/{sid}/design-progress").status_code
+        seen["reaped"] = design_changes.reap(p.db(), p.settings)
+        j = row()
+        seen["after"] = (j.state, j.attempt)
+        return real(storage, inputs, work_dir)
+
+    monkeypatch.setattr(design_changes, "compute", long_compute)
+    assert worker.execute_design_change(job_id) == "done"
+    assert seen["beat_age_s"] < lease_s and seen["status"] == 202 and seen["reaped"] == []
+    assert seen["after"] == ("running", 3)
+    j = row()
+    assert (j.state, j.attempt) == ("succeeded", 3) and j.result["accuracy"]["common_bias_source"]
+    # the dead attempts cannot record anything now
+    assert design_changes.finish(p.db(), job_id, 1, error="late") is False
+    assert design_changes.finish(p.db(), job_id, 2, result={}) is False
+    assert row().state == "succeeded"
+
+
+def test_two_ppk_surveys_on_the_same_base_position_share_its_error(site, tmp_path):
+    """No control points under either survey, both PPK against the same averaged single-point base position: the
+    pair's inputs carry that base (read from the runs' gnss and georef summaries) and its vertical sigma is the
+    common bias; a third survey on another base position shares nothing with the second."""
+    from backend.services import design_changes
+    from tests.backend.test_design_change_common_bias import BASE_ECEF_M, georef_summary, gnss_summary
+
+    sc = change_mc.one_seed(11, tmp_path, noise_m=0.0, common_bias_m=0.0, own_bias_m=0.0)
+    acc = {"dsm_sigma_m": 0.02, "vertical_rmse_m": 0.02, "correlation_length_m": 1.0}
+    same = {"gnss": gnss_summary(), "georef": georef_summary()}
+    other = {"gnss": gnss_summary([v + 1.5 for v in BASE_ECEF_M]), "georef": georef_summary()}
+    entries = []
+    for i, (name, summaries) in enumerate((("Dec A", same), ("Dec B", same), ("Dec C", other))):
+        run = _recorded_run(site, name, datetime(2026, 12, 1 + 7 * i, tzinfo=timezone.utc), sc["may"], acc,
+                            control=False, summaries=summaries)
+        entries.append({"run_id": run, "run_number": 1, "survey_name": name})
+    area = change_mc.area_geometry()
+    with site["p"].db().session(read_only=True) as s:
+        ab = design_changes.pair_inputs(s, entries[0], entries[1], area)
+        bc = design_changes.pair_inputs(s, entries[1], entries[2], area)
+    assert ab["control"] is None and ab["base"]["source"] == "averaged-single-point"
+    sigma, source = design_changes.common_bias(None, ab["control"], tmp_path, ab["base"])
+    assert sigma == pytest.approx(2.05) and "same base position" in source
+    assert bc["base"] is None and design_changes.common_bias(None, None, tmp_path, bc["base"])[0] == 0.0
+    assert design_changes.job_key(ab) != design_changes.job_key({**ab, "base": None})

@@ -138,8 +138,8 @@ def test_report_of_a_processed_survey(tmp_path):
     rmse_h = math.hypot(math.sqrt(np.mean(d[:, 0] ** 2) + np.mean(d[:, 1] ** 2)), math.sqrt(2) * 0.5)
     rmse_v = math.hypot(math.sqrt(np.mean(d[:, 2] ** 2)), 1.0)
     assert (f"This data set was tested against the ASPRS Positional Accuracy Standards for Digital Geospatial Data, "
-            f"Edition 2 (2023) using {len(d)} check points, fewer than the 30 the standard requires for a statement "
-            f"of compliance. The tested horizontal positional accuracy was found to be RMSE_H = {rmse_h:.1f} (cm).") \
+            f"Edition 2 (2023) using {len(d)} check points, fewer than the minimum of thirty (30) the standard calls "
+            f"for. The tested horizontal positional accuracy was found to be RMSE_H = {rmse_h:.1f} (cm).") \
         in text, text
     assert f"was found to be RMSE_V = {rmse_v:.1f} (cm)" in text
     # the verdict against the site tolerance
@@ -187,10 +187,9 @@ def test_thirty_check_points_make_a_compliance_statement_and_a_point_outside_is_
     assert acc["compliant"] and acc["horizontal"]["class_cm"] == 2.0 and acc["vertical"]["class_cm"] == 3.0
     text = _text(pdf)
     assert ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data, "
-            "Edition 2 (2023) for a 2 (cm) RMSE_H horizontal positional accuracy class. The tested horizontal "
+            "Edition 2 (2023) for a 2 (cm) RMSE_H Horizontal Positional Accuracy Class. The tested horizontal "
             "positional accuracy was found to be RMSE_H = 1.5 (cm).") in text, text
-    assert ("for a 3 (cm) RMSE_V vertical positional accuracy class. The tested vertical positional accuracy on "
-            "non-vegetated terrain (NVA) was found to be RMSE_V = 2.6 (cm).") in text
+    assert ("for a 3 (cm) RMSE_V Vertical Accuracy Class. NVA accuracy was found to be RMSE_V = 2.6 (cm).") in text
     assert "OUTSIDE TOLERANCE: 1 of 33 check points beyond the site tolerance of 3.0 cm horizontally and 5.0 cm " \
            "vertically: T33." in text
     assert summary["tolerance"]["outside"] == ["T33"] and not summary["tolerance"]["pass"]
