@@ -10,21 +10,52 @@ The check (``check_exif_heights``), before the adjustment, on the SfM block and 
 1. a 7-parameter similarity of the SfM camera centres onto the EXIF positions: the tilt it implies (the
    angle of the cameras' mean optical axis from nadir) and the vertical variance factor of its residuals
    against the stated vertical sigma;
-2. the same block levelled on a stated assumption - the cameras' mean optical axis is nadir, 1 sigma
-   ``NADIR_SIGMA_DEG`` (a mapping flight with a nadir gimbal or a nadir-fixed camera; an assumption, not a
-   measured figure) - with horizontal rotation, scale and position from the EXIF positions (2-D similarity);
-3. the EXIF heights minus the levelled block's heights regressed on time (offset + rate): the drift rate's
-   t-test (ordinary least squares, the residual scatter estimated). The heights are called inconsistent
-   with the block when the drift is significant (p < ``DRIFT_P_VALUE``, fixed in advance) and the drift over
-   the flight exceeds their stated vertical sigma (so the adjustment's weighting of them is wrong).
+2. the same block levelled (with horizontal rotation, scale and position from the EXIF positions, a 2-D
+   similarity) on one of:
 
-When they are inconsistent the heights given to the adjustment are those of the levelled block, placed at
-the EXIF heights' level at the flight's mean time (the offset of the offset + rate fit: the drift removed,
-the block's absolute height still the EXIF one), weighted at the larger of their stated sigma and the robust
-scatter (1.4826 MAD) left after the drift; the horizontal positions (the same receiver) at the larger of their
-stated sigma and the robust scatter of the levelled block's horizontal residuals. The EXIF heights' own scatter would otherwise tilt a small block by
-several degrees again (metres of noise over lines tens of metres apart); the block comes out level to the
-assumption's sigma, with horizontal position and scale still from EXIF.
+   * the cameras' **recorded gimbal attitude** (DJI XMP ``GimbalPitchDegree`` / ``GimbalYawDegree``), where
+     the photos carry one: each camera's optical axis is expected at its recorded pitch in the vertical
+     plane of its recorded yaw; the rotation that best takes the SfM axes onto them (Wahba's problem, least
+     squares over the unit vectors) levels the block, its yaw left free (a compass offset common to the
+     photos changes nothing; the yaw comes from the EXIF positions). 1 sigma: ``GIMBAL_SIGMA_DEG`` (an
+     assumption for the gimbal's horizon and the camera's mounting, not a measured figure) scaled by the
+     geometry of the look directions, with the axes' own scatter about the recorded ones. Only where that
+     sigma is no worse than the nadir assumption's: the recorded directions of a block whose cameras all
+     look one way do not fix the tilt about that direction (the block's free yaw takes it), and the block is
+     then not levelled. The recorded yaw, not only the pitch, is needed: on a serpentine the look
+     directions are pairwise opposite, and pitch alone with each camera's heading free leaves the tilt about
+     the lines' direction undetermined, the very tilt a drift mimics;
+   * otherwise the assumption that the cameras' mean optical axis is nadir, 1 sigma ``NADIR_SIGMA_DEG`` (a
+     mapping flight with a nadir gimbal or a nadir-fixed camera; an assumption, not a measured figure) -
+     unless the SfM optical axes show an oblique or mixed oblique + nadir block: their RMS angle from their
+     mean direction above ``OBLIQUE_AXIS_RMS_DEG`` (a nadir block's axes scatter by the body's attitude, a
+     few degrees; cameras pitched 30 degrees forward on a serpentine by ~30). Such a block is levelled on
+     its mean axis all the same, on the stated assumption that its look directions balance (a serpentine
+     with a forward-looking camera, a multi-direction oblique pattern), and the warning says so: obliques
+     that look mostly one way break it by up to their scatter (left unlevelled, a significant drift tilts
+     the block by tens of degrees, 70 on the test block: the worse outcome);
+3. the EXIF heights minus the block's heights (the levelled block's; the 7-parameter similarity's where
+   the block is not levelled, which sees only the part of a drift a tilt cannot take) regressed on time,
+   **per flight** (``flight``: the adjustment's flights, ``steps.georef.image_flights``: DJI flight folders
+   or a gap between photos): one joint least-squares fit with an offset and a rate per flight and one
+   residual variance (the same receiver on every flight; short flights borrow the others' degrees of
+   freedom), and an F-test of all the rates being zero (one flight: the rate's two-sided t-test, F = t^2).
+   Each flight's barometer is zeroed at its own take-off, so each has its own drift and its own level. The
+   heights are called inconsistent with the block when the rates are significant (p < ``DRIFT_P_VALUE``,
+   fixed in advance) and some flight's drift over that flight exceeds their stated vertical sigma (so the
+   adjustment's weighting of them is wrong).
+
+When they are inconsistent and the block is levelled, the heights given to the adjustment are those of the
+levelled block placed at the EXIF heights' level: each flight's fitted level at its own mean time (the
+drift removed), averaged over the photos (one flight: its offset). One level for the whole block, not each
+flight's own: the SfM block is rigid, so flights placed at levels that differ by metres would be a step
+the adjustment could only take up by tilting the block across flights that cover different parts of the
+site; the flights' levels are reported. The heights are weighted at the larger of their stated sigma and
+the robust scatter (1.4826 MAD) left after the drift; the horizontal positions (the same receiver) at the
+larger of their stated sigma and the robust scatter of the levelled block's horizontal residuals. The EXIF
+heights' own scatter would otherwise tilt a small block by several degrees again (metres of noise over lines
+tens of metres apart); the block comes out level to the levelling's sigma, with horizontal position and scale
+still from EXIF.
 """
 
 from __future__ import annotations
@@ -36,7 +67,14 @@ import numpy as np
 from .align import fit_similarity
 
 NADIR_SIGMA_DEG = 3.0     # assumed 1 sigma of the block's mean optical axis from nadir (mapping flight)
-DRIFT_P_VALUE = 0.01      # significance level of the height drift's t-test (fixed in advance)
+DRIFT_P_VALUE = 0.01      # significance level of the height drift's test (fixed in advance)
+# assumed 1 sigma of a recorded gimbal attitude (DJI XMP) against the camera's optical axis in the level frame:
+# the aircraft's horizon estimate and the camera's mounting on the gimbal (DJI states no figure)
+GIMBAL_SIGMA_DEG = 1.0
+# without recorded attitudes: the SfM optical axes' RMS angle from their mean direction above this is an oblique
+# or mixed oblique + nadir block (a nadir block's axes: the body's attitude, a few degrees; measured in the docs)
+OBLIQUE_AXIS_RMS_DEG = 10.0
+MIN_GIMBAL_PHOTOS = 6     # recorded attitudes are used where at least this many registered photos carry one
 
 
 def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -68,21 +106,132 @@ def block_tilt_deg(centre_enu_m: np.ndarray) -> float:
     return math.degrees(math.acos(min(1.0, abs(float(n[2])))))
 
 
+def axis_rms_deg(axis: np.ndarray) -> float:
+    """The optical axes' RMS angle from their mean direction, degrees (any frame: rotation-invariant)."""
+    A = np.asarray(axis, float).reshape(-1, 3)
+    A = A / np.linalg.norm(A, axis=1, keepdims=True)
+    m = A.mean(axis=0)
+    m /= np.linalg.norm(m)
+    return math.degrees(math.sqrt(float(np.mean(np.arccos(np.clip(A @ m, -1.0, 1.0)) ** 2))))
+
+
+def gimbal_axis_enu(pitch_deg, yaw_deg) -> np.ndarray:
+    """Unit optical axes (N, 3, ENU) of recorded gimbal attitudes: DJI's NED pitch (-90 looking straight down,
+    the axis' elevation) and yaw (degrees from true north, clockwise)."""
+    p, y = np.radians(np.asarray(pitch_deg, float)), np.radians(np.asarray(yaw_deg, float))
+    return np.column_stack([np.cos(p) * np.sin(y), np.cos(p) * np.cos(y), np.sin(p)])
+
+
+def level_on_recorded_axes(axis_model: np.ndarray, axis_expected_enu: np.ndarray) -> dict:
+    """The rotation (model frame -> ENU) that best takes the unit optical axes ``axis_model`` (N, 3) onto the
+    recorded ones ``axis_expected_enu`` (Wahba's problem: least squares over the unit vectors, solved by SVD), its
+    yaw free, and how well it fixes the level: ``up_model`` (the model-frame direction it takes to the vertical),
+    ``residual_rms_deg`` (the axes' scatter about the recorded ones, per component), ``geometry_factor`` (the
+    weakest tilt direction's 1 sigma per unit angular sigma of one camera, times sqrt(N): 1 for a nadir block,
+    about 1/cos of the off-nadir angle for pairwise opposite look directions, infinite for one look direction)
+    and ``random_sigma_deg`` (the tilt's 1 sigma from the residual scatter)."""
+    a = np.asarray(axis_model, float).reshape(-1, 3)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    e = np.asarray(axis_expected_enu, float).reshape(-1, 3)
+    e = e / np.linalg.norm(e, axis=1, keepdims=True)
+    m = len(a)
+    U, _, Vt = np.linalg.svd(e.T @ a)
+    R = U @ np.diag([1.0, 1.0, float(np.linalg.det(U @ Vt))]) @ Vt
+    b = a @ R.T
+    res = b - e
+    s_ang = math.sqrt(float(np.sum(res ** 2)) / max(1, 2 * m - 3))
+    # information of a small rotation w (ENU) from the axes: d(R a) = w x b, each axis fixing the 2 components of w
+    # across itself; the tilt's (w_E, w_N) with the yaw w_U free: the Schur complement
+    N = m * np.eye(3) - b.T @ b
+    Ntt, ntz, nzz = N[:2, :2], N[:2, 2], float(N[2, 2])
+    S = Ntt - np.outer(ntz, ntz) / nzz if nzz > 1e-9 * m else Ntt
+    lam = np.linalg.eigvalsh(S)
+    inv_max = math.inf if lam[0] <= 1e-9 * m else 1.0 / float(lam[0])
+    return {"R_model_to_enu": R, "up_model": R.T @ np.array([0.0, 0.0, 1.0]),
+            "residual_rms_deg": math.degrees(s_ang), "geometry_factor": math.sqrt(m * inv_max),
+            "random_sigma_deg": math.degrees(s_ang * math.sqrt(inv_max))}
+
+
+def _drift_fit(d: np.ndarray, t: np.ndarray, flight: np.ndarray) -> dict | None:
+    """Offset + rate per flight (one joint least-squares fit, one residual variance) of ``d`` on ``t``, and the
+    F-test of all the rates being zero; None when there are no degrees of freedom left."""
+    n = len(d)
+    labels = sorted(set(flight.tolist()))
+    cols_off, cols_rate, rows = [], [], []
+    for f in labels:
+        sel = flight == f
+        tm = float(t[sel].mean())
+        cols_off.append(sel.astype(float))
+        rows.append({"sel": sel, "t_mean": tm, "t_first": float(t[sel].min()), "rate_col": None})
+        if sel.sum() >= 3 and np.ptp(t[sel]) > 0:
+            rows[-1]["rate_col"] = len(cols_rate)
+            cols_rate.append(np.where(sel, t - tm, 0.0))
+    k = len(cols_rate)
+    dof = n - len(cols_off) - k
+    if k == 0 or dof < 1:
+        return None
+    G0 = np.column_stack(cols_off)
+    G = np.column_stack(cols_off + cols_rate)
+    coef, *_ = np.linalg.lstsq(G, d, rcond=None)
+    e = d - G @ coef
+    rss1 = float(np.sum(e ** 2))
+    c0, *_ = np.linalg.lstsq(G0, d, rcond=None)
+    rss0 = float(np.sum((d - G0 @ c0) ** 2))
+    s_e = math.sqrt(rss1 / dof)
+    from scipy import stats
+
+    if rss1 > 0:
+        F = (rss0 - rss1) / k / (rss1 / dof)
+        p = float(stats.f.sf(F, k, dof))
+    else:
+        F, p = math.inf, 0.0
+    out_rows = []
+    for j, (f, r) in enumerate(zip(labels, rows)):
+        sel = r["sel"]
+        dur = float(np.ptp(t[sel]))
+        row = {"flight": int(f) + 1, "n": int(sel.sum()), "duration_min": round(dur / 60, 2),
+               "level_m": float(coef[j]), "rate_m_s": 0.0, "rate_sigma_m_s": None,
+               "first_minus_mean_s": r["t_first"] - r["t_mean"]}
+        if r["rate_col"] is not None:
+            sxx = float(np.sum((t[sel] - r["t_mean"]) ** 2))
+            row["rate_m_s"] = float(coef[len(labels) + r["rate_col"]])
+            row["rate_sigma_m_s"] = s_e / math.sqrt(sxx)
+        row["duration_s"] = dur
+        out_rows.append(row)
+    return {"rows": out_rows, "residual": e, "s_e": s_e, "F": F, "k": k, "dof": dof, "p": p}
+
+
 def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m: np.ndarray, time_s: np.ndarray,
-                       sigma_v_m: float, time_source: str = "EXIF times", sigma_h_m: float | None = None) -> dict:
+                       sigma_v_m: float, time_source: str = "EXIF times", sigma_h_m: float | None = None,
+                       flight: np.ndarray | None = None, gimbal_pitch_deg: np.ndarray | None = None,
+                       gimbal_yaw_deg: np.ndarray | None = None, level_at: str = "mean") -> dict:
     """The check above. ``centre_sfm`` / ``axis_sfm``: (N, 3) camera centres and optical axes (unit, +z of
     the camera) in the SfM frame; ``exif_enu_m`` (N, 3) the EXIF positions in local ENU; ``time_s`` (N,)
-    exposure times (any origin); ``sigma_v_m`` their stated vertical sigma. Returns a dict (the summary's
-    ``exif_heights``) with ``inconsistent``, the statistics, and when inconsistent ``height_enu_m`` (N,) and
-    ``sigma_v_m`` to give the adjustment, ``level_sigma_deg`` and a ``text``."""
+    exposure times (any origin); ``sigma_v_m`` their stated vertical sigma; ``flight`` (N,) each photo's flight
+    (any labels; None: one flight); ``gimbal_pitch_deg`` / ``gimbal_yaw_deg`` (N,) the recorded gimbal attitude
+    (DJI XMP; NaN where a photo has none); ``level_at`` where each flight's level is taken: ``"mean"`` its mean
+    time (least scatter; a drift with no known zero, e.g. a camera's own GPS), ``"start"`` its first photo (heights
+    relative to a barometer zeroed at take-off, DJI XMP ``RelativeAltitude``: the drift starts from zero there).
+    Returns a dict (the summary's ``exif_heights``) with ``inconsistent``
+    (the drift), ``levelled``, the statistics, and when levelled ``height_enu_m`` (N,) and ``sigma_v_m`` to give
+    the adjustment, ``level_sigma_deg``, ``assumption`` and a ``text``."""
     C = np.asarray(centre_sfm, float).reshape(-1, 3)
     A = np.asarray(axis_sfm, float).reshape(-1, 3)
     X = np.asarray(exif_enu_m, float).reshape(-1, 3)
     t = np.asarray(time_s, float).reshape(-1)
     n = len(C)
+    if level_at not in ("mean", "start"):
+        raise ValueError(f"level_at must be 'mean' or 'start', not {level_at!r}")
+    for name, v in (("flight", flight), ("gimbal_pitch_deg", gimbal_pitch_deg), ("gimbal_yaw_deg", gimbal_yaw_deg)):
+        if v is not None and np.asarray(v).size != n:
+            raise ValueError(f"{name}: {np.asarray(v).size} values for {n} photos")
+    if flight is None:
+        fl = np.zeros(n, int)
+    else:
+        _, fl = np.unique(np.asarray(flight).reshape(-1), return_inverse=True)
     if n < 6 or not np.all(np.isfinite(t)) or np.ptp(t) <= 0:
-        return {"inconsistent": False, "text": f"EXIF heights: not checked ({n} photos with positions and times; "
-                                                "6 with distinct times needed)"}
+        return {"inconsistent": False, "levelled": False,
+                "text": f"EXIF heights: not checked ({n} photos with positions and times; 6 with distinct times needed)"}
     # 1. the 7-parameter similarity onto the EXIF positions
     sim7, res7 = fit_similarity(C, X)
     A_unit = A / np.linalg.norm(A, axis=1, keepdims=True)
@@ -91,46 +240,114 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
     tilt7 = _tilt_deg(axis7)
     dof7 = max(1, n - 3)   # the vertical residuals' share of the 7 parameters' 3N - 7 degrees of freedom, roughly
     vf7 = float(np.sum(res7[:, 2] ** 2) / sigma_v_m ** 2 / dof7)
-    # 2. levelled on the mean optical axis (nadir), horizontal from a 2-D similarity onto the EXIF positions
-    R_lev = _rotation_onto(axis7, np.array([0.0, 0.0, -1.0])) @ sim7.R
-    P = sim7.scale * C @ R_lev.T
-    ph, xh = P[:, :2] - P[:, :2].mean(axis=0), X[:, :2] - X[:, :2].mean(axis=0)
-    zp, zx = ph[:, 0] + 1j * ph[:, 1], xh[:, 0] + 1j * xh[:, 1]
-    w = np.vdot(zp, zx) / np.vdot(zp, zp)              # complex scale x rotation (least squares)
-    s2, yaw = abs(w), float(np.angle(w))
-    eh = xh - np.column_stack([(w * zp).real, (w * zp).imag])      # horizontal residuals of the levelled block
-    Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]])
-    R = Rz @ R_lev
-    z_block = s2 * sim7.scale * (C @ R.T)[:, 2]
-    # 3. the EXIF heights minus the levelled block's, on time: offset + rate, t-test of the rate
-    d = X[:, 2] - z_block
-    tm = float(t.mean())
-    dt = t - tm
-    G = np.column_stack([np.ones(n), dt])
-    coef, *_ = np.linalg.lstsq(G, d, rcond=None)
-    e = d - G @ coef
-    s_e = float(np.sqrt(np.sum(e ** 2) / (n - 2)))
-    se_b = s_e / math.sqrt(float(np.sum(dt ** 2)))
-    rate = float(coef[1])
-    t_stat = rate / se_b if se_b > 0 else math.inf
-    from scipy import stats
-
-    p = float(2 * stats.t.sf(abs(t_stat), n - 2))
-    duration_s = float(np.ptp(t))
-    drift_m = rate * duration_s
-    inconsistent = bool(p < DRIFT_P_VALUE and abs(drift_m) > sigma_v_m)
     axis_scatter_deg = math.degrees(float(np.sqrt(np.mean(np.sum((A_unit - mean_axis) ** 2, axis=1))))) / math.sqrt(n)
-    out = {"inconsistent": inconsistent, "n": n, "time_source": time_source,
+    rms_axis = axis_rms_deg(A_unit)
+    # 2. how the block is levelled: on the recorded gimbal attitudes, else on a nadir mean axis, else not at all
+    pitch = np.full(n, np.nan) if gimbal_pitch_deg is None else np.asarray(gimbal_pitch_deg, float).reshape(-1)
+    yaw = np.full(n, np.nan) if gimbal_yaw_deg is None else np.asarray(gimbal_yaw_deg, float).reshape(-1)
+    rec = np.isfinite(pitch) & np.isfinite(yaw)
+    up7, method, level_sigma, not_levelled_why, gim = None, None, None, None, None
+    if rec.sum() >= MIN_GIMBAL_PHOTOS:
+        gim = level_on_recorded_axes(A_unit[rec] @ sim7.R.T, gimbal_axis_enu(pitch[rec], yaw[rec]))
+        level_sigma = math.hypot(GIMBAL_SIGMA_DEG * gim["geometry_factor"], gim["random_sigma_deg"])
+        if level_sigma <= NADIR_SIGMA_DEG:
+            up7, method = gim["up_model"], "gimbal"
+        else:
+            gf = gim["geometry_factor"]
+            not_levelled_why = (f"the recorded gimbal attitudes of {int(rec.sum())} photos fix the block's level only to "
+                                f"{level_sigma:.1f} deg (1 sigma; their look directions' geometry "
+                                f"{'x ' + format(gf, '.1f') if math.isfinite(gf) else 'leaves a tilt free'}: every camera "
+                                f"looking one way fixes no tilt about that direction; the SfM axes "
+                                f"{gim['residual_rms_deg']:.1f} deg RMS from the recorded ones), worse than the "
+                                f"{NADIR_SIGMA_DEG:g} deg of the nadir assumption")
+    elif rms_axis > OBLIQUE_AXIS_RMS_DEG:
+        # an oblique or mixed block with no recorded attitude: levelled on its mean axis all the same, on the stated
+        # assumption that its look directions balance (a serpentine with a forward-looking camera, a five-direction
+        # oblique pattern: their mean is nadir up to the body's attitude). Left unlevelled, a significant drift
+        # tilts the block by tens of degrees (70 deg on the test's block); obliques looking mostly one way break
+        # the assumption by up to their scatter, which the warning states
+        up7, method = -axis7, "balanced-oblique"
+        level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
+    else:
+        up7, method = -axis7, "nadir"
+        level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
+    if up7 is not None:
+        R_lev = _rotation_onto(up7, np.array([0.0, 0.0, 1.0])) @ sim7.R
+        P = sim7.scale * C @ R_lev.T
+        ph, xh = P[:, :2] - P[:, :2].mean(axis=0), X[:, :2] - X[:, :2].mean(axis=0)
+        zp, zx = ph[:, 0] + 1j * ph[:, 1], xh[:, 0] + 1j * xh[:, 1]
+        w = np.vdot(zp, zx) / np.vdot(zp, zp)              # complex scale x rotation (least squares)
+        s2, yaw_b = abs(w), float(np.angle(w))
+        eh = xh - np.column_stack([(w * zp).real, (w * zp).imag])      # horizontal residuals of the levelled block
+        Rz = np.array([[math.cos(yaw_b), -math.sin(yaw_b), 0], [math.sin(yaw_b), math.cos(yaw_b), 0], [0, 0, 1.0]])
+        z_block = s2 * sim7.scale * (C @ (Rz @ R_lev).T)[:, 2]
+    else:
+        z_block = X[:, 2] - res7[:, 2]      # the block fitted to the heights (tilt and all)
+        eh = None
+    # 3. the EXIF heights minus the block's, on time: offset + rate per flight, F-test of the rates
+    d = X[:, 2] - z_block
+    fit = _drift_fit(d, t, fl)
+    if fit is None:
+        return {"inconsistent": False, "levelled": False, "n": n,
+                "text": f"EXIF heights: not checked ({n} photos in {len(set(fl.tolist()))} flights: no degrees of "
+                        "freedom left for an offset and a rate per flight)"}
+    rows, e, s_e, p = fit["rows"], fit["residual"], fit["s_e"], fit["p"]
+    for r in rows:
+        if level_at == "start":
+            r["level_m"] += r["rate_m_s"] * r["first_minus_mean_s"]
+        r["drift_m"] = r["rate_m_s"] * r["duration_s"]
+        r["drift_sigma_m"] = None if r["rate_sigma_m_s"] is None else r["rate_sigma_m_s"] * r["duration_s"]
+    worst = max(rows, key=lambda r: abs(r["drift_m"]))
+    multi = len(rows) > 1
+    duration_s = float(np.ptp(t))
+    drift_m = worst["drift_m"]
+    inconsistent = bool(p < DRIFT_P_VALUE and abs(drift_m) > sigma_v_m)
+    t_stat = worst["rate_m_s"] / worst["rate_sigma_m_s"] if worst["rate_sigma_m_s"] else math.inf
+    out = {"inconsistent": inconsistent, "levelled": False, "n": n, "time_source": time_source,
            "similarity_tilt_deg": round(tilt7, 2), "vertical_variance_factor": round(vf7, 2),
-           "stated_sigma_v_m": sigma_v_m,
-           "drift_m": round(drift_m, 2), "duration_min": round(duration_s / 60, 2), "drift_sigma_m": round(se_b * duration_s, 2),
+           "stated_sigma_v_m": sigma_v_m, "axis_rms_deg": round(rms_axis, 2),
+           "drift_m": round(drift_m, 2), "duration_min": round((worst["duration_s"] if multi else duration_s) / 60, 2),
+           "drift_sigma_m": round(worst["drift_sigma_m"] or 0.0, 2),
            "t": round(t_stat, 2) if math.isfinite(t_stat) else None, "p_value": float(f"{p:.3g}"),
-           "residual_sd_after_drift_m": round(s_e, 2), "p_level": DRIFT_P_VALUE}
-    stat = (f"drift {drift_m:+.1f} m over {duration_s / 60:.1f} min ({time_source}; sigma "
-            f"{se_b * duration_s:.1f} m, t = {t_stat:.1f}, p = {p:.2g})")
+           "residual_sd_after_drift_m": round(s_e, 2), "p_level": DRIFT_P_VALUE,
+           "drift_against": "the levelled block" if up7 is not None else "the block fitted to the heights (not levelled)",
+           "level_at": ("each flight's first photo (heights from a barometer zeroed at take-off)" if level_at == "start"
+                        else "each flight's mean time")}
+    if multi:
+        out.update(n_flights=len(rows), F=round(fit["F"], 2) if math.isfinite(fit["F"]) else None,
+                   test=f"F-test of {fit['k']} per-flight rates ({fit['dof']} residual degrees of freedom)")
+    out["flights"] = [{"flight": r["flight"], "n": r["n"], "duration_min": r["duration_min"],
+                       "drift_m": round(r["drift_m"], 2),
+                       "drift_sigma_m": None if r["drift_sigma_m"] is None else round(r["drift_sigma_m"], 2),
+                       "level_m": round(r["level_m"], 2)} for r in rows]
+    if gim is not None:
+        out["gimbal"] = {"photos": int(rec.sum()), "residual_rms_deg": round(gim["residual_rms_deg"], 2),
+                         "geometry_factor": round(gim["geometry_factor"], 2) if math.isfinite(gim["geometry_factor"])
+                         else None, "level_sigma_deg": round(level_sigma, 2) if math.isfinite(level_sigma) else None}
+    if multi:
+        per = "; ".join(f"flight {r['flight']} {r['drift_m']:+.1f} m over {r['duration_s'] / 60:.1f} min"
+                        for r in rows)
+        stat = (f"drift per flight ({time_source}): {per}; F = {fit['F']:.1f} on ({fit['k']}, {fit['dof']}) "
+                f"degrees of freedom, p = {p:.2g}")
+    else:
+        stat = (f"drift {drift_m:+.1f} m over {duration_s / 60:.1f} min ({time_source}; sigma "
+                f"{(worst['drift_sigma_m'] or 0.0):.1f} m, t = {t_stat:.1f}, p = {p:.2g})")
     if not inconsistent:
+        lev = f"a similarity onto them tilts it {tilt7:.1f} deg from a nadir mean axis"
+        if method == "gimbal":
+            lev += f"; the recorded gimbal attitudes would level it to {level_sigma:.1f} deg"
+        elif up7 is None:
+            lev = f"a similarity onto them; {not_levelled_why}"
         out["text"] = (f"EXIF heights consistent with the block at their stated {sigma_v_m:g} m: {stat}; the block is "
-                       f"levelled by them (a similarity onto them tilts it {tilt7:.1f} deg from a nadir mean axis)")
+                       f"levelled by them ({lev})")
+        return out
+    if up7 is None:
+        out["text"] = (f"EXIF heights inconsistent with the block ({stat}; against the block fitted to them, so only "
+                       f"the part of the drift a tilt cannot take is seen): held at their stated {sigma_v_m:g} m they "
+                       f"tilt it. The block is NOT levelled: {not_levelled_why}. The heights keep their stated weights "
+                       f"and the block's tilt, the DSM's slope and volumes rest on them: control points or RTK/PPK "
+                       f"positions are needed")
+        out["not_levelled"] = not_levelled_why
         return out
     mad = float(np.median(np.abs(e - np.median(e))))
     sigma_new = max(sigma_v_m, 1.4826 * mad)
@@ -138,16 +355,40 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
         eh_c = eh.reshape(-1)
         sigma_h_new = max(sigma_h_m, 1.4826 * float(np.median(np.abs(eh_c - np.median(eh_c)))))
         out["sigma_h_m"] = round(sigma_h_new, 2)
-    level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
-    out.update(height_enu_m=z_block + float(coef[0]), sigma_v_m=round(sigma_new, 2),
-               level_sigma_deg=round(level_sigma, 2), assumption=(
-                   f"the cameras' mean optical axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg, an assumption for a "
-                   f"mapping flight; {axis_scatter_deg:.2f} deg from the axes' scatter)"))
+    level_m = float(sum(r["level_m"] * r["n"] for r in rows) / n)     # one level for the rigid block
+    at = "first photo" if level_at == "start" else "mean time"
+    if method == "gimbal":
+        assumption = (f"the cameras' recorded gimbal attitudes (XMP pitch and yaw of {int(rec.sum())} photos, 1 sigma "
+                      f"{GIMBAL_SIGMA_DEG:g} deg assumed, x {gim['geometry_factor']:.2f} for their look directions; "
+                      f"the SfM axes scatter {gim['residual_rms_deg']:.2f} deg about them)")
+        how = "on the cameras' recorded gimbal attitudes"
+    elif method == "balanced-oblique":
+        assumption = (f"an oblique or mixed block (its optical axes scatter {rms_axis:.1f} deg RMS about their mean, "
+                      f"more than {OBLIQUE_AXIS_RMS_DEG:g} deg) with no gimbal attitude recorded: its look directions "
+                      f"taken to balance, so that their mean axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg; "
+                      f"{axis_scatter_deg:.2f} deg from the axes' scatter); obliques looking mostly one way would "
+                      f"leave the block tilted by up to {rms_axis:.0f} deg")
+        how = ("on the assumption that the look directions of this oblique or mixed block balance (mean axis nadir; "
+               f"the axes scatter {rms_axis:.1f} deg, no gimbal attitude recorded: obliques looking mostly one way "
+               f"would leave it tilted by up to that much)")
+    else:
+        assumption = (f"the cameras' mean optical axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg, an assumption for a "
+                      f"mapping flight; {axis_scatter_deg:.2f} deg from the axes' scatter)")
+        how = "on the assumption that the cameras' mean optical axis is nadir"
+    out.update(levelled=True, level_method=method, height_enu_m=z_block + level_m, sigma_v_m=round(sigma_new, 2),
+               level_sigma_deg=round(level_sigma, 2), assumption=assumption)
+    if multi:
+        lv = [r["level_m"] for r in rows]
+        out["flight_levels_spread_m"] = round(max(lv) - min(lv), 2)
     hz = f" (weighted at {out['sigma_h_m']:g} m, their scatter about the levelled block)" if "sigma_h_m" in out else ""
+    flights_txt = (f"each flight's drift is removed and the block placed at the flights' mean level (each at its {at}; "
+                   f"their levels differ by {out['flight_levels_spread_m']:.1f} m; one level for the rigid block)"
+                   if multi else
+                   f"the heights' drift is removed (rate {rows[0]['rate_m_s'] * 60:+.2f} m/min) and only their level "
+                   f"at the flight's {at} is kept")
     out["text"] = (f"EXIF heights inconsistent with the block ({stat}): held at their stated {sigma_v_m:g} m they "
-                   f"would tilt it {tilt7:.1f} deg. The block is levelled instead on the assumption that the cameras' "
-                   f"mean optical axis is nadir (tilt sigma {level_sigma:.1f} deg); the heights' drift is removed "
-                   f"(rate {rate * 60:+.2f} m/min) and only their mean level is kept (weighted at {sigma_new:.1f} m); horizontal position "
-                   f"and scale still from the EXIF GPS{hz}. Volumes and the DSM's slope rest on that assumption: "
+                   f"would tilt it {tilt7:.1f} deg. The block is levelled instead {how} (tilt sigma "
+                   f"{level_sigma:.1f} deg); {flights_txt} (weighted at {sigma_new:.1f} m); horizontal position "
+                   f"and scale still from the EXIF GPS{hz}. Volumes and the DSM's slope rest on that levelling: "
                    f"control points or RTK/PPK positions remove it")
     return out

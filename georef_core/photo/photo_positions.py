@@ -44,6 +44,11 @@ class PhotoPositions:
     time_gps_s: np.ndarray               # (N,) from the EXIF time where there is one, else NaN
     kind: str                            # "rtk" (XMP RtkFlag) or "exif-gps"
     warnings: list[str] = field(default_factory=list)
+    # (N, 2) the recorded gimbal pitch and yaw (DJI XMP GimbalPitchDegree / GimbalYawDegree, degrees: pitch -90
+    # looking straight down, yaw from true north clockwise), NaN where a photo has none (photo/exif_heights.py)
+    gimbal_deg: np.ndarray | None = None
+    # every photo also carries DJI XMP RelativeAltitude: the heights come from a barometer zeroed at take-off
+    heights_from_takeoff: bool = False
 
     @property
     def source(self) -> str:
@@ -77,10 +82,14 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
     except ValueError as exc:
         raise InputFileError(image_dir, f"photo height datum (survey.json photo_heights): {exc}") from None
     rtk, exif = {}, {}
-    times = {}
+    times, gimbal, relative = {}, {}, set()
     for name in names:
         p = image_dir / name
         x = read_dji_xmp(p)
+        if x is not None and x.gimbal_pitch_deg is not None and x.gimbal_yaw_deg is not None:
+            gimbal[name] = (float(x.gimbal_pitch_deg), float(x.gimbal_yaw_deg))
+        if x is not None and x.relative_altitude_m is not None:
+            relative.add(name)
         info = read_image_info(p, warn=False)
         if info.time_original is not None:
             t = info.time_original
@@ -138,8 +147,10 @@ def read_photo_positions(image_dir: Path, names: list[str], height_datum: str = 
             status.append(5)
         kind = "exif-gps"
     t = np.array([times.get(n, np.nan) for n in out_names], dtype=float)
+    gim = np.array([gimbal.get(n, (np.nan, np.nan)) for n in out_names], dtype=float).reshape(-1, 2)
     return PhotoPositions(out_names, np.asarray(pos, dtype=float).reshape(-1, 3), np.asarray(cov).reshape(-1, 3, 3),
-                          np.asarray(status, dtype=int), t, kind, warnings)
+                          np.asarray(status, dtype=int), t, kind, warnings, gimbal_deg=gim,
+                          heights_from_takeoff=bool(out_names) and all(n in relative for n in out_names))
 
 
 def _to_ellipsoidal(records: dict, datum, lat_attr: str, lon_attr: str, height_attr: str) -> None:

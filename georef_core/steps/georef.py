@@ -175,6 +175,8 @@ class ImageGnss:
     cov_ecef_m2: np.ndarray | None = None     # (N, 3, 3) full covariance where known (else sd_ecef_m, diagonal)
     from_photos: bool = False                 # positions read from the photos (XMP RTK / EXIF GPS), not PPK
     kind: str = ""                            # photo positions: "rtk" or "exif-gps" (photo_positions.py)
+    gimbal_deg: np.ndarray | None = None      # photo positions: (N, 2) recorded gimbal pitch, yaw (deg; NaN: none)
+    heights_from_takeoff: bool = False        # photo positions: heights from a barometer zeroed at take-off (DJI XMP)
 
 
 def _read_ppk_events(path: Path) -> dict[str, np.ndarray]:
@@ -275,7 +277,8 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     n = len(pp.names)
     sd = np.sqrt(np.abs(np.einsum("kii->ki", pp.cov_ecef_m2)))
     gnss = ImageGnss(pp.names, pp.time_gps_s, pp.position_ecef_m, np.zeros((n, 3)), sd, pp.status, pp.source,
-                     cov_ecef_m2=pp.cov_ecef_m2, from_photos=True, kind=str(pp.kind))
+                     cov_ecef_m2=pp.cov_ecef_m2, from_photos=True, kind=str(pp.kind), gimbal_deg=pp.gimbal_deg,
+                     heights_from_takeoff=pp.heights_from_takeoff)
     if opts.lever_arm_cam_m is None:
         opts.lever_arm_cam_m = (0.0, 0.0, 0.0)
         opts.estimate_lever_arm = False
@@ -290,11 +293,14 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
     return gnss
 
 
-def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list) -> dict | None:
-    """EXIF GPS heights checked against the SfM block (photo/exif_heights.py); where they drift, the heights
-    given to the adjustment (``gnss_enu``, in place) are the levelled block's at the EXIF heights' mean level, and
-    the horizontal sigmas are raised to the positions' scatter, so that the block is levelled on the nadir-axis
-    assumption instead of tilted by the drift."""
+def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list, flights: dict | None = None) -> dict | None:
+    """EXIF GPS heights checked against the SfM block (photo/exif_heights.py), per flight (``flights``: image ->
+    flight, the adjustment's, ``image_flights``); where they drift and the block can be levelled (on the photos'
+    recorded gimbal attitudes, else on the nadir-axis assumption unless the axes show an oblique block), the
+    heights given to the adjustment (``gnss_enu``, in place) are the levelled block's at one level from the EXIF
+    heights (each flight's at its first photo for heights from a barometer zeroed at take-off, DJI XMP
+    RelativeAltitude, else at its mean time; averaged over the photos), and the horizontal sigmas are raised to the positions' scatter, so that the block is levelled instead
+    of tilted by the drift."""
     from ..photo.exif_heights import check_exif_heights
     from ..photo.photo_positions import EXIF_GPS_SIGMA_M
 
@@ -310,8 +316,17 @@ def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list) -> dict 
     C = np.array([by_name[n].centre for n in names])
     A = np.array([by_name[n].R_cam_from_world[2] for n in names])     # the optical axis (camera +z) in the model
     X = np.array([gnss_enu[n][0] for n in names])
-    out = check_exif_heights(C, A, X, t, EXIF_GPS_SIGMA_M[1], source, sigma_h_m=EXIF_GPS_SIGMA_M[0])
-    if out.get("inconsistent"):
+    fl = np.array([(flights or {}).get(n, 0) for n in names], int)
+    gim = np.full((len(names), 2), np.nan)
+    if gnss.gimbal_deg is not None:
+        g_of = dict(zip(gnss.names, np.asarray(gnss.gimbal_deg, float).reshape(-1, 2)))
+        gim = np.array([g_of.get(n, (np.nan, np.nan)) for n in names], float).reshape(-1, 2)
+    out = check_exif_heights(C, A, X, t, EXIF_GPS_SIGMA_M[1], source, sigma_h_m=EXIF_GPS_SIGMA_M[0], flight=fl,
+                             gimbal_pitch_deg=gim[:, 0], gimbal_yaw_deg=gim[:, 1],
+                             level_at="start" if gnss.heights_from_takeoff else "mean")
+    if out.get("inconsistent") and not out.get("levelled"):
+        warnings.append(out["text"])
+    if out.get("levelled"):
         h, sig = out.pop("height_enu_m"), float(out["sigma_v_m"])
         sig_h = float(out["sigma_h_m"])
         for k, n in enumerate(names):
@@ -738,7 +753,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
                 continue
             gnss_enu[name] = (enu[k], vel[k], cov[k], int(gnss.status[k]), float(gnss.trigger_gps_time_s[k]))
     # the flights (batteries) of the GNSS positions and the prior of their common offsets
-    flight_prior = None
+    flight_prior, flights = None, {}
     if gnss is not None and gnss_enu:
         flights, flights_source = image_flights(gnss, found.camera_offsets_csv, opts.flight_gap_s)
         flights = {n: f for n, f in flights.items() if n in gnss_enu}
@@ -786,7 +801,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
         warnings.append(f"{len(unregistered)} image(s) not registered by SfM: {', '.join(unregistered[:10])}"
                         + (" ..." if len(unregistered) > 10 else ""))
     cameras = _camera_groups(rec, image_dir)
-    exif_heights = _exif_heights(rec, gnss, gnss_enu, warnings) if gnss is not None and gnss.kind == "exif-gps" else None
+    exif_heights = (_exif_heights(rec, gnss, gnss_enu, warnings, flights) if gnss is not None and gnss.kind == "exif-gps"
+                    else None)
     shutters = [_shutter_flag(image_dir / c["first_image"], opts.rolling_shutter, opts.readout_s) for c in cameras]
 
     t0 = time.perf_counter()
@@ -794,7 +810,7 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     result = _adjust(opts, frame, rec, control, gnss_enu, warnings,
                      rolling=[bool(sh["rolling_shutter"]) for sh in shutters], image_dir=image_dir,
                      flight_prior=flight_prior)
-    result.heights_from_block = bool(exif_heights and exif_heights.get("inconsistent"))
+    result.heights_from_block = bool(exif_heights and exif_heights.get("levelled"))
     _shutter_outcomes(shutters, result, opts, image_dir, warnings)
     timings["adjustment_s"] = time.perf_counter() - t0
     report("adjustment", 1, 1)
@@ -809,10 +825,19 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     summary["target_refinement"] = target_refinement
     if exif_heights is not None:
         summary["exif_heights"] = exif_heights
-        if exif_heights.get("inconsistent") and isinstance(summary["absolute_accuracy"], dict):
+        if exif_heights.get("levelled") and isinstance(summary["absolute_accuracy"], dict):
+            on = {"gimbal": "the cameras' recorded gimbal attitudes",
+                  "balanced-oblique": "the assumption that the look directions of this oblique or mixed block balance "
+                                      "(their mean axis nadir)"}.get(exif_heights.get("level_method"),
+                                                                     "the assumption that the cameras' mean optical "
+                                                                     "axis is nadir")
             summary["absolute_accuracy"]["text"] += (
-                f"; the photos' heights drift, so the block's level rests instead on the assumption that the cameras' "
-                f"mean optical axis is nadir (tilt sigma {exif_heights['level_sigma_deg']:g} deg; exif_heights)")
+                f"; the photos' heights drift, so the block's level rests instead on {on} "
+                f"(tilt sigma {exif_heights['level_sigma_deg']:g} deg; exif_heights)")
+        elif exif_heights.get("inconsistent") and isinstance(summary["absolute_accuracy"], dict):
+            summary["absolute_accuracy"]["text"] += (
+                "; the photos' heights drift and the block could not be levelled (exif_heights): its tilt rests on "
+                "the drifting heights")
     summary["rolling_shutter"] = dict(shutters[0])
     if len(shutters) > 1:
         summary["rolling_shutter"]["cameras"] = shutters
