@@ -367,8 +367,9 @@ def image_flights(gnss: ImageGnss, offsets_csv: Path | None, gap_s: float) -> tu
 
 
 FIXED_STATUS = 1    # a fixed solution: PPK status 1, DJI RtkFlag 50 (photo_positions.STATUS_OF_RTK_FLAG)
-# a time without exposures after which a not-fixed stretch is taken as a new one (its bias re-drawn): an assumption,
-# of the order of the minutes a float solution's bias takes to change (docs/dji.md, "One offset per float stretch")
+# a time without exposures after which a not-fixed stretch is taken as a new one (its bias re-drawn): measured, the lag
+# at which a real float error's drifting part has lost half its correlation (45-67 s on the car it was chosen on,
+# 26-60 s on two checks; bench/float_error_correlation.py, docs/georeferencing.md "The float-stretch gap, measured")
 FLOAT_STRETCH_GAP_S = 60.0
 
 
