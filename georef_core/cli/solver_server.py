@@ -70,6 +70,13 @@ def preload() -> str:
     import importlib
     import io
 
+    try:   # `--crs`: pyproj's import (~0.17 s) here, once; no CRS or transformer is built (PROJ's database is
+        # first opened in the solve process that asks for one, never shared across a fork)
+        import pyproj  # noqa: F401
+        import pyproj.transformer  # noqa: F401
+    except ImportError:
+        pass
+    main.keep_parser()   # the command-line parser is built once (below) and every solve process inherits it
     with contextlib.redirect_stdout(io.StringIO()):   # the parser: every command module is imported
         try:
             main.main(["gnss", "solve", "--help"])

@@ -86,6 +86,27 @@ class PhaseSpans:
         self.zero_amb = np.zeros(self.cfg.n_kin + d.obs_ok.shape[1] * d.obs_ok.shape[2])
         self.unbroken = np.concatenate([np.zeros((1,) + d.obs_ok.shape[1:], np.int64),
                                         np.cumsum(d.obs_ok, axis=0, dtype=np.int64)])
+        # DD phase residuals at an anchor epoch over the signals of its span to an epoch e, by (anchor, e, anchor
+        # position bytes): the arbiter's two candidates share them
+        self.anchor_residuals: dict = {}
+
+
+ANCHOR_BLOCK = 8   # anchors whose spans are counted together at first (nearest first), the blocks doubling after
+
+
+def _qualifying_anchors(d, e: int, ordered: np.ndarray, unbroken: np.ndarray, min_signals: int):
+    """The anchors of `ordered` (nearest first, e itself left out) whose span to e keeps at least min_signals
+    signals (_span_signals), in order: the same test, counted for a block of anchors at once (ANCHOR_BLOCK, then
+    twice as many each time: most epochs need the first block only, some look far)."""
+    k, size = 0, ANCHOR_BLOCK
+    while k < len(ordered):
+        block = ordered[k:k + size]
+        k, size = k + size, 2 * size
+        lo, hi = np.minimum(block, e), np.maximum(block, e)
+        ok = ((unbroken[hi + 1] - unbroken[lo] == (hi + 1 - lo)[:, None, None])
+              & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1]))
+        n_ok = ok.reshape(len(block), -1).sum(axis=1)
+        yield from block[n_ok >= min_signals]
 
 
 def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.ndarray, fixed: np.ndarray,
@@ -107,16 +128,18 @@ def anchored_rms_m(data: PreparedData, opts: RtkOptions, position_ecef_m: np.nda
     anchors = np.asarray(anchors, dtype=np.int64)
     out = np.full(n_e, np.nan)
     used = np.zeros(n_e, dtype=np.int64)
+    cache = spans.anchor_residuals
     for e in np.nonzero(fixed)[0]:
         rms = []
-        for a in anchors[np.argsort(np.abs(anchors - e), kind="stable")]:
-            if a == e:
-                continue
+        ordered = anchors[np.argsort(np.abs(anchors - e), kind="stable")]
+        for a in _qualifying_anchors(d, e, ordered[ordered != e], unbroken, min_signals):
             lo, hi = min(a, e), max(a, e)
             ok = _span_signals(d, lo, hi, unbroken)
-            if ok.sum() < min_signals:
-                continue
-            r_a = phase_residuals(d, cfg, a, np.asarray(anchor_ecef_m[a], float), zero_amb, ok)[0]
+            pos_a = np.asarray(anchor_ecef_m[a], float)
+            key = (int(a), int(e), pos_a.tobytes())
+            r_a = cache.get(key)
+            if r_a is None:
+                r_a = cache[key] = phase_residuals(d, cfg, a, pos_a, zero_amb, ok)[0]
             r_e = phase_residuals(d, cfg, e, np.asarray(position_ecef_m[e], float), zero_amb, ok)[0]
             change = reference_free_change_rms(r_a, r_e, ok, d.sys_code)
             if np.isfinite(change):

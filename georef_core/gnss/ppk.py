@@ -19,6 +19,7 @@ from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
 from .fix_continuity import refuse_jumping_fixes
 from .fix_precision import refuse_imprecise_fixes
+from . import concurrent_pass
 from .fix_witness import PhaseArbiter, refuse_contradicted_fixes
 from .frames import ecef_to_enu_rotation, ecef_to_geodetic
 from .gnss_time import gps_time_s_to_datetime
@@ -384,22 +385,47 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
         fixed = np.nonzero(fwd.status == STATUS_FIX)[0]
         return fwd.position_ecef_m[fixed[-1]] if len(fixed) else None
 
+    def two_passes(first_backward: bool, role: str):
+        """The first pass and the second (the other direction), the second in a forked child on another
+        core while this process runs the first when the two are independent and the solve is big enough
+        (concurrent_pass.py: the same arrays either way)."""
+        second_start = known if first_backward else None
+        independent = first_backward or known is None
+        second = None
+        if independent and concurrent_pass.worth_forking(int(data.rover_usable.size) * opts.n_bands):
+            second = concurrent_pass.ForkedPass(lambda: refuse_jumping_fixes(
+                arrays, config, flt.run(backward=not first_backward, known_start_ecef_m=second_start))[0])
+        try:
+            first = run_pass(first_backward, None if first_backward else known)
+            if second is None:
+                return first, run_pass(not first_backward, second_start if first_backward else backward_start(first),
+                                       3, role)
+            if progress:
+                progress(f"Kalman filter, {'forward' if first_backward else 'backward'} pass{role}", 3, 4)
+            return first, second.result()
+        finally:
+            if second is not None:
+                second.cancel()
+
     arbiter = PhaseArbiter(data, opts)
     if opts.filter_direction == "combined":
-        fwd = run_pass(False, known)
-        bwd = run_pass(True, backward_start(fwd), 3)
+        fwd, bwd = two_passes(False, "")
         out, conflicts = combine(fwd, bwd, arbiter)
         # the two passes' fixes side by side can jump where the combination changes pass
         out = refuse_jumping_fixes(arrays, config, out)[0]
     elif opts.filter_direction == "forward":
-        out = run_pass(False, known)
         if opts.reverse_witness:
             # the fixes the backward pass contradicts are not output as fixed (fix_witness.py)
-            out, conflicts = refuse_contradicted_fixes(out, run_pass(True, backward_start(out), 3, " (witness)"), arbiter)
+            out, witness = two_passes(False, " (witness)")
+            out, conflicts = refuse_contradicted_fixes(out, witness, arbiter)
+        else:
+            out = run_pass(False, known)
     else:
-        out = run_pass(True, None)
         if opts.reverse_witness:
-            out, conflicts = refuse_contradicted_fixes(out, run_pass(False, known, 3, " (witness)"), arbiter)
+            out, witness = two_passes(True, " (witness)")
+            out, conflicts = refuse_contradicted_fixes(out, witness, arbiter)
+        else:
+            out = run_pass(True, None)
     # a fix whose position the geometry leaves decimetre-level is not output as fixed (fix_precision.py)
     out, n_imprecise = refuse_imprecise_fixes(out, opts.fix_max_sigma_m)
     if n_imprecise:
