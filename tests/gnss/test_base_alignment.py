@@ -5,6 +5,7 @@ transitions, slips carried to the first rover epoch that uses a base epoch."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from georef_core.gnss.base_alignment import SYNC_TOLERANCE_S, align_base_to_rover
 from georef_core.gnss.cycle_slips import lli_slips
@@ -80,3 +81,52 @@ def test_half_cycle_flag_change_is_a_slip_in_both_directions():
     np.testing.assert_array_equal(flags, [False, False, True, False, False, True, False, True, False])
     # without the phases only bit 0 counts (as before)
     np.testing.assert_array_equal(lli_slips(lli)[:, 0, 0], lli[:, 0, 0] & 1 == 1)
+
+
+def test_base_epochs_with_another_ephemeris_record_than_the_rover_epoch_give_no_base_data():
+    # G01's record changes between base epochs 20 and 40 (a base gap across the change), G02's does not;
+    # rover epochs 21..39 pair with 20 (older) or 40 (newer); a rover epoch after the change paired with the
+    # base epoch before it (or interpolated with it) carries the records' discontinuity: no base data there
+    base_t = np.array([10.0, 20.0, 40.0])
+    base = _base(base_t)
+    res = base.phase_cyc * 1.0
+    rover_t = np.array([20.0, 25.0, 29.0, 31.0, 35.0, 40.0])
+    rec_base = np.array([[0, 5], [0, 5], [1, 5]])
+    rec_rover = np.array([[0, 5], [0, 5], [1, 5], [1, 5], [1, 5], [1, 5]])   # G01 changes record at 28 s
+    el = np.full((3, 2), 0.5)
+    plain = align_base_to_rover(rover_t, base, res, res.copy(), el, 30.0, interpolate=False)
+    near = align_base_to_rover(rover_t, base, res, res.copy(), el, 30.0, interpolate=False,
+                               records=(rec_base, rec_rover))
+    # nearest pairing: 29 s takes the 20 s epoch (old record) with the rover's new one; 31 s takes 40 s (new)
+    np.testing.assert_array_equal(np.isnan(near.phase_res_m[:, 0, 0]), [False, False, True, False, False, False])
+    np.testing.assert_array_equal(np.isnan(near.code_res_m[:, 0, 0]), [False, False, True, False, False, False])
+    np.testing.assert_array_equal(near.phase_res_m[:, 1, 0], plain.phase_res_m[:, 1, 0])   # G02 unchanged
+    np.testing.assert_array_equal(near.age_s, plain.age_s)
+    # interpolation across the gap uses both epochs: every rover epoch strictly inside it mixes the records
+    interp = align_base_to_rover(rover_t, base, res, res.copy(), el, 30.0, interpolate=True,
+                                 records=(rec_base, rec_rover))
+    np.testing.assert_array_equal(np.isnan(interp.phase_res_m[:, 0, 0]), [False, True, True, True, True, False])
+    assert np.isfinite(interp.phase_res_m[:, 1, 0]).all()
+    with pytest.raises(ValueError, match="do not fit"):
+        align_base_to_rover(rover_t, base, res, res.copy(), el, 30.0, interpolate=True,
+                            records=(rec_base, rec_rover[:3]))
+
+
+def test_ephemeris_records_change_at_the_glonass_record_boundary_of_the_shipped_file():
+    # the shipped navigation file (simulated cases, bench/gnss_sim_vs_demo5.py): GLONASS records every 30 min;
+    # the engine changes record at 08:30:18 GPST (the middle between two records), GPS keeps its record
+    from georef_core.gnss.base_alignment import ephemeris_records
+    from georef_core.gnss.gnss_time import calendar_to_gps_time_s
+    from georef_core.gnss.rinex_nav import read_rinex_nav
+    from georef_core.sim.survey_gnss import SHIPPED_NAV
+
+    nav = read_rinex_nav(SHIPPED_NAV)
+    t = calendar_to_gps_time_s(2024, 6, 24, 8, 30, 0) + np.array([10.0, 17.0, 19.0, 30.0])
+    glo = ephemeris_records(nav, sorted(nav.glonass), t)
+    glo = glo[:, (glo >= 0).all(axis=0)]                 # satellites with a healthy record at these times
+    assert glo.shape[1] >= 3
+    np.testing.assert_array_equal(glo[0], glo[1])
+    np.testing.assert_array_equal(glo[2], glo[3])
+    assert (glo[2] != glo[1]).all()
+    gps = ephemeris_records(nav, sorted(nav.kepler)[:4], t)
+    assert (gps >= 0).all() and (gps == gps[0]).all()
