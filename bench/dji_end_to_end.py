@@ -8,6 +8,11 @@ flights): `georef simulate --aircraft dji-rtk` (default size: about 96 photos of
 
 Prints the check points' 3D RMSE and the camera centres' ANEES against the truth for each, and the
 time of each step. Usage: python bench/dji_end_to_end.py [--seed 41] [--small] [--images N] [--keep DIR]
+[--flight-offsets MODE[,MODE...]] [--flight-offset-sigma H,V] [--cases ppk,rtk,zeroed]
+
+``--flight-offsets auto,on`` runs each case once per mode (forwarded to `georef georef --flight-offsets`; the
+SfM is reused), e.g. to compare the per-flight GNSS offsets modelled or not on the same survey; ``--cases ppk``
+runs the raw PPK case alone. The check points' ANEES (their stated sigmas against their errors) is printed too.
 """
 
 from __future__ import annotations
@@ -62,7 +67,17 @@ def _figures(survey: Path, out: Path) -> dict:
     return {"check_points": res["statistics"]["n"], "rmse_3d_mm": 1000 * res["statistics"]["3d"]["rmse_m"],
             "rmse_v_mm": 1000 * res["statistics"]["dz"]["rmse_m"],
             "centre_anees": float(np.mean(np.sum((d / sd) ** 2, axis=1) / 3.0)),
-            "centre_mean_error_enu_mm": (1000 * d.mean(axis=0)).round(1).tolist()}
+            "centre_mean_error_enu_mm": (1000 * d.mean(axis=0)).round(1).tolist(),
+            "check_anees": _check_anees(res)}
+
+
+def _check_anees(res: dict) -> float:
+    """The check points' ANEES: mean over points of |error / stated sigma|^2 / 3 (nan where no sigma)."""
+    rows = [r for r in res.get("rows", res.get("points", [])) if r.get("sigma_m")]
+    if not rows:
+        return float("nan")
+    e = np.array([[r["dx_m"], r["dy_m"], r["dz_m"]] for r in rows])
+    return float(np.mean(np.sum((e / np.array([r["sigma_m"] for r in rows])) ** 2, axis=1) / 3.0))
 
 
 def main() -> int:
@@ -71,7 +86,17 @@ def main() -> int:
     ap.add_argument("--small", action="store_true")
     ap.add_argument("--images", type=int)
     ap.add_argument("--keep", help="work folder to keep (default: a temporary one)")
+    ap.add_argument("--flight-offsets", default="",
+                    help="comma-separated modes (auto, on, off) forwarded to georef --flight-offsets; each case runs "
+                         "once per mode (default: the step's default, not forwarded)")
+    ap.add_argument("--flight-offset-sigma", help="H,V (m): forwarded to georef --flight-offset-sigma (the per-flight "
+                    "offsets' prior; default the step's 1 cm / 1.5 cm)")
+    ap.add_argument("--cases", default="ppk,rtk,zeroed", help="which cases to run: ppk, rtk, zeroed (comma-separated)")
     a = ap.parse_args()
+    modes = [m.strip() for m in a.flight_offsets.split(",") if m.strip()] or [None]
+    wanted = {c.strip() for c in a.cases.split(",") if c.strip()}
+    if bad := [m for m in modes if m not in ("auto", "on", "off")] + sorted(wanted - {"ppk", "rtk", "zeroed"}):
+        ap.error(f"unknown --flight-offsets mode or --cases name: {', '.join(map(str, bad))}")
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="dji_bench_"))
     survey = work / "site"
     args = ["simulate", str(survey), "--seed", str(a.seed), "--quiet", "--aircraft", "dji-rtk"]
@@ -81,20 +106,25 @@ def main() -> int:
     assert georef(args) == 0
     print(f"simulated in {time.perf_counter() - t0:.0f} s -> {survey}")
     cases = {
-        "raw PPK + MRK offsets": (survey, None),
-        "RTK-tagged photos alone": (_copy(survey, work / "rtk_only", lambda p: p.name.endswith("_PPKRAW.bin")
-                                         or p.parent.name == "base"), None),
-        "MRK offsets zeroed": (_copy(survey, work / "zeroed", lambda p: False,
-                                     lambda t: re.sub(r"-?\d+,N\t\s*-?\d+,E\t\s*-?\d+,V", "0,N\t0,E\t0,V", t)), None),
+        "raw PPK + MRK offsets": (survey, "ppk"),
+        "RTK-tagged photos alone": (None if "rtk" not in wanted else _copy(
+            survey, work / "rtk_only", lambda p: p.name.endswith("_PPKRAW.bin") or p.parent.name == "base"), "rtk"),
+        "MRK offsets zeroed": (None if "zeroed" not in wanted else _copy(
+            survey, work / "zeroed", lambda p: False,
+            lambda t: re.sub(r"-?\d+,N\t\s*-?\d+,E\t\s*-?\d+,V", "0,N\t0,E\t0,V", t)), "zeroed"),
     }
+    runs = [(f"{name} [{m}]" if m else name, site, m) for name, (site, key) in cases.items() if key in wanted
+            for m in modes]
     first_out = None
-    for name, (site, _) in cases.items():
+    for name, site, mode in runs:
         out = work / ("out_" + re.sub(r"\W+", "_", name))
         if first_out is not None:           # the same photos: reuse the first run's SfM
             out.mkdir(parents=True, exist_ok=True)
             shutil.copytree(first_out / "sfm", out / "sfm", dirs_exist_ok=True)
         t0 = time.perf_counter()
-        rc = georef(["georef", str(site), "--out", str(out), "--control", "none", "--no-leave-one-out"])
+        rc = georef(["georef", str(site), "--out", str(out), "--control", "none", "--no-leave-one-out"]
+                    + (["--flight-offsets", mode] if mode else [])
+                    + (["--flight-offset-sigma", a.flight_offset_sigma] if a.flight_offset_sigma else []))
         dt = time.perf_counter() - t0
         if rc != 0:
             print(f"{name}: georef failed ({rc})")
@@ -102,7 +132,8 @@ def main() -> int:
         first_out = first_out or out
         f = _figures(survey, out)
         print(f"{name:26s} check points {f['check_points']}: 3D RMSE {f['rmse_3d_mm']:6.1f} mm; camera centres ANEES "
-              f"{f['centre_anees']:6.2f}, mean error E/N/U {f['centre_mean_error_enu_mm']} mm; {dt:.0f} s")
+              f"{f['centre_anees']:6.2f}, mean error E/N/U {f['centre_mean_error_enu_mm']} mm; check-point ANEES "
+              f"{f['check_anees']:.2f}; {dt:.0f} s")
     return 0
 
 
