@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputFileError, ProcessingError
-from .base_alignment import align_base_to_rover, base_zero_difference
+from .base_alignment import align_base_to_rover, base_zero_difference, ephemeris_records
 from .constants import CLIGHT_M_S, N_BANDS, wavelength_table_m
 from .corrections import ionosphere_delay_m, troposphere_delay_m
 from .cycle_slips import doppler_slips, geometry_free_slips, lli_slips
@@ -266,7 +266,11 @@ def prepare(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigati
     dd_iono = opts.ionosphere if opts.dd_ionosphere else "off"
     b_phase, b_code, b_el = base_zero_difference(base, bsat, nav, base_pos, lam, opts.troposphere, dd_iono,
                                                  opts.dd_troposphere_humidity)
-    aligned = align_base_to_rover(rover.gps_time_s, base, b_phase, b_code, b_el, opts.max_age_s, opts.base_interpolation)
+    # a base residual computed with another broadcast record than the rover epoch's carries the records'
+    # discontinuity (a record change inside a base gap): left out there (base_alignment.py)
+    records = (ephemeris_records(nav, sat_ids, base.gps_time_s), ephemeris_records(nav, sat_ids, rover.gps_time_s))
+    aligned = align_base_to_rover(rover.gps_time_s, base, b_phase, b_code, b_el, opts.max_age_s, opts.base_interpolation,
+                                  records=records)
     timings["base"] = _time.perf_counter() - t0
 
     t0 = _time.perf_counter()
