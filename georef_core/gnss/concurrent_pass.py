@@ -14,7 +14,7 @@ whose other threads hold locks is unsafe), and a pass big enough that a fork (~1
 ~1 ms to read the result back, and the copies of the pages parent and child then write: ~10 us each on the
 2-core virtual machine, ~3 000-5 000 of them per solve) is a small part of it.
 GEOREF_GNSS_CONCURRENT_PASSES=0 turns it off (every pass serial, as before), =1 forces it whenever a fork
-is possible (the tests use it on a small file). docs/gnss.md, "Speed".
+is possible, other threads or not (the tests use it on a small file, in pytest-xdist workers). docs/gnss.md, "Speed".
 """
 
 from __future__ import annotations
@@ -51,10 +51,12 @@ def worth_forking(signal_epochs: int) -> bool:
     setting = os.environ.get(ENV, "").strip().lower()
     if setting in ("0", "off", "no", "false"):
         return False
-    if not hasattr(os, "fork") or threading.active_count() != 1:
+    if not hasattr(os, "fork"):
         return False
-    if setting in ("1", "on", "yes", "true", "always"):
+    if setting in ("1", "on", "yes", "true", "always"):   # forced (the tests; pytest-xdist's workers run threads)
         return True
+    if threading.active_count() != 1:
+        return False
     cpus = usable_cpus()
     return cpus >= 2 and signal_epochs >= MIN_SIGNAL_EPOCHS and _load_1min() <= cpus - MIN_IDLE_CPUS
 

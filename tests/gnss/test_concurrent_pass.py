@@ -117,6 +117,7 @@ def test_worth_forking_rules(monkeypatch):
     monkeypatch.setenv(concurrent_pass.ENV, "1")
     assert concurrent_pass.worth_forking(1)
     monkeypatch.delenv(concurrent_pass.ENV)
+    monkeypatch.setattr(concurrent_pass.threading, "active_count", lambda: 1)   # (pytest-xdist's workers run threads)
     monkeypatch.setattr(concurrent_pass, "_load_1min", lambda: 0.5)
     assert not concurrent_pass.worth_forking(concurrent_pass.MIN_SIGNAL_EPOCHS - 1)
     monkeypatch.setattr(concurrent_pass, "usable_cpus", lambda: 1)
