@@ -95,7 +95,7 @@ def main() -> int:
     a = ap.parse_args()
     modes = [m.strip() for m in a.flight_offsets.split(",") if m.strip()] or [None]
     wanted = {c.strip() for c in a.cases.split(",") if c.strip()}
-    if bad := [m for m in modes if m not in ("auto", "on", "off")] + sorted(wanted - {"ppk", "rtk", "zeroed"}):
+    if bad := [m for m in modes if m is not None and m not in ("auto", "on", "off")] + sorted(wanted - {"ppk", "rtk", "zeroed"}):
         ap.error(f"unknown --flight-offsets mode or --cases name: {', '.join(map(str, bad))}")
     work = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="dji_bench_"))
     survey = work / "site"

@@ -8,7 +8,7 @@ from .georef_options import FACTORY_CALIBRATION_CHOICES, FLIGHT_OFFSET_CHOICES, 
 
 # ---------------------------------------------------------------------------------------------------- gnss
 GNSS = StepSpec(
-    name="gnss", title="GNSS baseline processing (PPK)", version=2,
+    name="gnss", title="GNSS baseline processing (PPK)", version=3,
     description="The drone receiver's raw observations against the base: antenna positions, velocities and "
                 "covariances at every epoch and camera trigger (docs/gnss.md).",
     function="georef_core.steps.gnss_solve:step_entry",
@@ -76,7 +76,7 @@ GNSS = StepSpec(
 
 # -------------------------------------------------------------------------------------------------- georef
 GEOREF = StepSpec(
-    name="georef", title="Georeferencing", version=3,
+    name="georef", title="Georeferencing", version=4,
     description="Structure from motion, GNSS-aided bundle adjustment with lever arm and trigger delay, and the "
                 "check-point residual table (docs/georeferencing.md).",
     function="georef_core.steps.georef:step_entry", depends_on=("gnss",), heavy=True,
