@@ -170,15 +170,35 @@ def _png(rgba: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _pick_level(ds, decimation: float) -> int:
-    """Index of the overview to read (-1: full resolution): the one nearest (in log scale) to the
-    decimation the tile needs, so that a tile reads 181-362 cells across (power-of-two overviews), never
-    more than 1.41 source cells per tile pixel from an overview."""
+def _pick_level(overviews, decimation: float) -> int:
+    """Index of the overview to read (-1: full resolution) among the overview factors ``overviews`` (a
+    dataset's ``overviews(1)``): the one nearest (in log scale) to the decimation the tile needs, so that a
+    tile reads 181-362 cells across (power-of-two overviews), never more than 1.41 source cells per tile
+    pixel from an overview."""
     level = -1
-    for i, f in enumerate(ds.overviews(1)):
+    for i, f in enumerate(overviews):
         if f <= decimation * math.sqrt(2.0):
             level = i
     return level
+
+
+def _source_window(ds, bounds, decimation: float, factor: float):
+    """(window, (out_h, out_w), transform of the read array) of the cells of ``ds`` (an overview level of
+    ``factor``) under ``bounds`` plus a one-cell margin; a raster with too few overviews (not a COG) is
+    decimated on read, so the output stays bounded."""
+    from affine import Affine
+    from rasterio.windows import Window, from_bounds as window_from_bounds
+
+    win = window_from_bounds(*bounds, transform=ds.transform).round_offsets(op="floor").round_lengths(op="ceil")
+    col0, row0 = max(0, int(win.col_off) - 1), max(0, int(win.row_off) - 1)
+    col1 = min(ds.width, int(win.col_off + win.width) + 1)
+    row1 = min(ds.height, int(win.row_off + win.height) + 1)
+    win = Window(col0, row0, col1 - col0, row1 - row0)
+    rest = decimation / factor
+    out_h, out_w = int(win.height), int(win.width)
+    if rest > 1.5:
+        out_h, out_w = max(1, math.ceil(win.height / rest)), max(1, math.ceil(win.width / rest))
+    return win, (out_h, out_w), ds.window_transform(win) @ Affine.scale(win.width / out_w, win.height / out_h)
 
 
 def render_tile(path, info: RasterInfo, z: int, x: int, y: int) -> Tile:
@@ -194,11 +214,9 @@ def render_tile_rgba(path, info: RasterInfo, z: int, x: int, y: int) -> tuple[np
     does not touch the raster; source cells read per band; overview factor). For writers that encode the
     tile themselves (the KMZ super-overlay: JPEG where it has no transparent pixel)."""
     import rasterio
-    from affine import Affine
     from rasterio.enums import Resampling
     from rasterio.transform import from_bounds
     from rasterio.warp import reproject, transform_bounds
-    from rasterio.windows import Window, from_bounds as window_from_bounds
 
     left, bottom, right, top = tile_bounds_m(z, x, y)
     mb = info.mercator_bounds
@@ -218,22 +236,12 @@ def render_tile_rgba(path, info: RasterInfo, z: int, x: int, y: int) -> tuple[np
         # cells the whole tile spans at full resolution, against the tile's pixels
         span = max((sb[2] - sb[0]) / abs(ds0.res[0]), (sb[3] - sb[1]) / abs(ds0.res[1]))
         decimation = max(1.0, span / n)
-        level = _pick_level(ds0, decimation)
+        level = _pick_level(ds0.overviews(1), decimation)
         factor = ds0.overviews(1)[level] if level >= 0 else 1
     kw = {"overview_level": level} if level >= 0 else {}
     with rasterio.open(path, **kw) as ds:
-        win = window_from_bounds(*ib, transform=ds.transform).round_offsets(op="floor").round_lengths(op="ceil")
-        col0, row0 = max(0, int(win.col_off) - 1), max(0, int(win.row_off) - 1)
-        col1 = min(ds.width, int(win.col_off + win.width) + 1)
-        row1 = min(ds.height, int(win.row_off + win.height) + 1)
-        win = Window(col0, row0, col1 - col0, row1 - row0)
-        # too few overviews (a raster that is not a COG): decimate on read, bounded output
-        rest = decimation / factor
-        out_h, out_w = int(win.height), int(win.width)
-        if rest > 1.5:
-            out_h, out_w = max(1, math.ceil(win.height / rest)), max(1, math.ceil(win.width / rest))
-        src_transform = ds.window_transform(win) @ Affine.scale(win.width / out_w, win.height / out_h)
-        shape = (out_h, out_w)
+        win, shape, src_transform = _source_window(ds, ib, decimation, factor)
+        out_h, out_w = shape
         if info.style == "rgb":
             bands = [1, 2, 3] if ds.count >= 3 else [1, 1, 1]
             rgb = ds.read(bands, window=win, out_shape=(3,) + shape, resampling=Resampling.average)
@@ -347,9 +355,7 @@ class RgbTileDrawer:
 
     def rgba(self, z: int, x: int, y: int) -> np.ndarray | None:
         """The tile as render_tile_rgba's first value (TILE_PX x TILE_PX x 4 uint8, or None off the raster)."""
-        from affine import Affine
         from rasterio.enums import Resampling
-        from rasterio.windows import Window, from_bounds as window_from_bounds
 
         left, bottom, right, top = tile_bounds_m(z, x, y)
         mb = self.info.mercator_bounds
@@ -364,22 +370,10 @@ class RgbTileDrawer:
             return None
         span = max((sb[2] - sb[0]) / abs(ds0.res[0]), (sb[3] - sb[1]) / abs(ds0.res[1]))
         decimation = max(1.0, span / n)
-        level = -1
-        for i, f in enumerate(self._overviews):      # _pick_level's choice
-            if f <= decimation * math.sqrt(2.0):
-                level = i
+        level = _pick_level(self._overviews, decimation)
         factor = self._overviews[level] if level >= 0 else 1
         ds = self._dataset(level)
-        win = window_from_bounds(*ib, transform=ds.transform).round_offsets(op="floor").round_lengths(op="ceil")
-        col0, row0 = max(0, int(win.col_off) - 1), max(0, int(win.row_off) - 1)
-        col1 = min(ds.width, int(win.col_off + win.width) + 1)
-        row1 = min(ds.height, int(win.row_off + win.height) + 1)
-        win = Window(col0, row0, col1 - col0, row1 - row0)
-        rest = decimation / factor
-        out_h, out_w = int(win.height), int(win.width)
-        if rest > 1.5:
-            out_h, out_w = max(1, math.ceil(win.height / rest)), max(1, math.ceil(win.width / rest))
-        src_transform = ds.window_transform(win) @ Affine.scale(win.width / out_w, win.height / out_h)
+        win, (out_h, out_w), src_transform = _source_window(ds, ib, decimation, factor)
         # tile pixel (column, row) -> source pixel (column, row) of the window read: an affine fitted on 5 x 5 points
         g = np.linspace(0.0, n, 5)
         cols, rows = (a.ravel() for a in np.meshgrid(g, g))
