@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,6 +123,15 @@ class OrientedImages:
             rgb = self.sparse_rgb if self.sparse_rgb is not None else np.zeros_like(self.sparse_xyz_enu_m, np.uint8)
             np.savez_compressed(sp, xyz_enu_m=self.sparse_xyz_enu_m, rgb=rgb)
             doc["sparse_points_file"] = sp.name
+        # the images' folder also relative to this file's: a platform worker materialises the survey and the
+        # run's outputs side by side in a folder of its own (runs/<run>/survey, .../out; a part's in
+        # parts/<step>-<k>/), so a later run or part, or another machine, finds its own copy of the images
+        # where the absolute path (the georef run's folder) is gone
+        if self.image_dir.is_absolute():
+            try:
+                doc["image_dir_relative"] = os.path.relpath(self.image_dir, path.parent.resolve())
+            except ValueError:   # another drive (Windows): the absolute path only
+                pass
         path.write_text(json.dumps(doc, indent=1))
         return path
 
@@ -142,6 +152,9 @@ def read_oriented_images(path) -> OrientedImages:
         image_dir = Path(doc["image_dir"])
         if not image_dir.is_absolute():
             image_dir = (path.parent / image_dir).resolve()
+        rel = doc.get("image_dir_relative")
+        if isinstance(rel, str) and rel and (path.parent / rel).is_dir():
+            image_dir = (path.parent / rel).resolve()
         cameras = {int(k): OrientedCamera(v["model"], int(v["width"]), int(v["height"]), list(map(float, v["params"])),
                                           float(v.get("readout_s", 0.0)))
                    for k, v in doc["cameras"].items()}
@@ -163,7 +176,7 @@ def read_oriented_images(path) -> OrientedImages:
         if sp.is_file():
             with np.load(sp) as z:
                 xyz, rgb = z["xyz_enu_m"], z["rgb"]
-    known = {"format", "project_frame", "image_dir", "cameras", "images", "sparse_points_file"}
+    known = {"format", "project_frame", "image_dir", "image_dir_relative", "cameras", "images", "sparse_points_file"}
     extra = {k: v for k, v in doc.items() if k not in known}
     return OrientedImages(frame, image_dir, cameras, images, xyz, rgb, extra)
 

@@ -152,13 +152,15 @@ class WorkerProc:
 
 
 def start_worker(p: Platform, name: str, beat: bool = False, timeout_s: float = 60, queues: str = "both",
-                 **extra) -> WorkerProc:
+                 concurrency: int = 0, **extra) -> WorkerProc:
     """A Celery worker process (solo pool) on the platform's default queue, its heavy queue or both
-    (`queues`); `extra` settings override the platform's (e.g. work_dir: a worker with a disk of its own)."""
+    (`queues`); `extra` settings override the platform's (e.g. work_dir: a worker with a disk of its own).
+    ``concurrency`` > 0: the prefork pool with that many child processes (as deployed) instead of solo."""
     queue = p.env["GEOREF_DEFAULT_QUEUE"]
     wanted = {"both": f"{queue},{queue}-heavy", "default": queue, "heavy": f"{queue}-heavy"}[queues]
     log = p.data_dir / f"worker-{name}.log"
-    cmd = [PY, "-m", "celery", "-A", "worker.celery_app", "worker", "-Q", wanted, "--pool", "solo",
+    pool = ["prefork", "--concurrency", str(concurrency)] if concurrency > 0 else ["solo"]
+    cmd = [PY, "-m", "celery", "-A", "worker.celery_app", "worker", "-Q", wanted, "--pool", *pool,
            "--loglevel", "INFO", "-n", f"{name}-{uuid.uuid4().hex[:6]}@%h", "--without-gossip", "--without-mingle",
            "--without-heartbeat"]
     if beat:
