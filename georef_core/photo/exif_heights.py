@@ -74,6 +74,11 @@ GIMBAL_SIGMA_DEG = 1.0
 # without recorded attitudes: the SfM optical axes' RMS angle from their mean direction above this is an oblique
 # or mixed oblique + nadir block (a nadir block's axes: the body's attitude, a few degrees; measured in the docs)
 OBLIQUE_AXIS_RMS_DEG = 10.0
+# what a levelled block's level rests on, per level_method (the warning and the georef summary's accuracy text)
+LEVEL_BASIS = {"gimbal": "the cameras' recorded gimbal attitudes",
+               "nadir": "the assumption that the cameras' mean optical axis is nadir",
+               "balanced-oblique": "the assumption that the look directions of this oblique or mixed block balance "
+                                   "(their mean axis nadir)"}
 MIN_GIMBAL_PHOTOS = 6     # recorded attitudes are used where at least this many registered photos carry one
 
 
@@ -260,16 +265,13 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
                                 f"looking one way fixes no tilt about that direction; the SfM axes "
                                 f"{gim['residual_rms_deg']:.1f} deg RMS from the recorded ones), worse than the "
                                 f"{NADIR_SIGMA_DEG:g} deg of the nadir assumption")
-    elif rms_axis > OBLIQUE_AXIS_RMS_DEG:
-        # an oblique or mixed block with no recorded attitude: levelled on its mean axis all the same, on the stated
-        # assumption that its look directions balance (a serpentine with a forward-looking camera, a five-direction
-        # oblique pattern: their mean is nadir up to the body's attitude). Left unlevelled, a significant drift
-        # tilts the block by tens of degrees (70 deg on the test's block); obliques looking mostly one way break
-        # the assumption by up to their scatter, which the warning states
-        up7, method = -axis7, "balanced-oblique"
-        level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
     else:
-        up7, method = -axis7, "nadir"
+        # on the mean axis; an oblique or mixed block with no recorded attitude too, on the stated assumption that
+        # its look directions balance (a serpentine with a forward-looking camera, a five-direction oblique
+        # pattern: their mean is nadir up to the body's attitude). Left unlevelled, a significant drift tilts the
+        # block by tens of degrees (70 deg on the test's block); obliques looking mostly one way break the
+        # assumption by up to their scatter, which the warning states
+        up7, method = -axis7, ("balanced-oblique" if rms_axis > OBLIQUE_AXIS_RMS_DEG else "nadir")
         level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
     if up7 is not None:
         R_lev = _rotation_onto(up7, np.array([0.0, 0.0, 1.0])) @ sim7.R
@@ -361,21 +363,20 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
         assumption = (f"the cameras' recorded gimbal attitudes (XMP pitch and yaw of {int(rec.sum())} photos, 1 sigma "
                       f"{GIMBAL_SIGMA_DEG:g} deg assumed, x {gim['geometry_factor']:.2f} for their look directions; "
                       f"the SfM axes scatter {gim['residual_rms_deg']:.2f} deg about them)")
-        how = "on the cameras' recorded gimbal attitudes"
+        how = f"on {LEVEL_BASIS[method]}"
     elif method == "balanced-oblique":
         assumption = (f"an oblique or mixed block (its optical axes scatter {rms_axis:.1f} deg RMS about their mean, "
                       f"more than {OBLIQUE_AXIS_RMS_DEG:g} deg) with no gimbal attitude recorded: its look directions "
                       f"taken to balance, so that their mean axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg; "
                       f"{axis_scatter_deg:.2f} deg from the axes' scatter); obliques looking mostly one way would "
                       f"leave the block tilted by up to {rms_axis:.0f} deg")
-        how = ("on the assumption that the look directions of this oblique or mixed block balance (mean axis nadir; "
-               f"the axes scatter {rms_axis:.1f} deg, no gimbal attitude recorded: obliques looking mostly one way "
-               f"would leave it tilted by up to that much)")
+        how = (f"on {LEVEL_BASIS[method]}, its axes scattering {rms_axis:.1f} deg with no gimbal attitude recorded "
+               f"(obliques looking mostly one way would leave it tilted by up to that much)")
     else:
         assumption = (f"the cameras' mean optical axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg, an assumption for a "
                       f"mapping flight; {axis_scatter_deg:.2f} deg from the axes' scatter)")
-        how = "on the assumption that the cameras' mean optical axis is nadir"
-    out.update(levelled=True, level_method=method, height_enu_m=z_block + level_m, sigma_v_m=round(sigma_new, 2),
+        how = f"on {LEVEL_BASIS[method]}"
+    out.update(levelled=True, level_method=method, level_basis=LEVEL_BASIS[method], height_enu_m=z_block + level_m, sigma_v_m=round(sigma_new, 2),
                level_sigma_deg=round(level_sigma, 2), assumption=assumption)
     if multi:
         lv = [r["level_m"] for r in rows]

@@ -827,13 +827,8 @@ def run_georef(survey_dir, out_dir, options: GeorefOptions | None = None, progre
     if exif_heights is not None:
         summary["exif_heights"] = exif_heights
         if exif_heights.get("levelled") and isinstance(summary["absolute_accuracy"], dict):
-            on = {"gimbal": "the cameras' recorded gimbal attitudes",
-                  "balanced-oblique": "the assumption that the look directions of this oblique or mixed block balance "
-                                      "(their mean axis nadir)"}.get(exif_heights.get("level_method"),
-                                                                     "the assumption that the cameras' mean optical "
-                                                                     "axis is nadir")
             summary["absolute_accuracy"]["text"] += (
-                f"; the photos' heights drift, so the block's level rests instead on {on} "
+                f"; the photos' heights drift, so the block's level rests instead on {exif_heights['level_basis']} "
                 f"(tilt sigma {exif_heights['level_sigma_deg']:g} deg; exif_heights)")
         elif exif_heights.get("inconsistent") and isinstance(summary["absolute_accuracy"], dict):
             summary["absolute_accuracy"]["text"] += (
