@@ -70,9 +70,12 @@ def reference_free_change_rms(r0: np.ndarray, r1: np.ndarray, ok: np.ndarray, sy
     return float(np.sqrt(acc / dof)) if dof else np.nan
 
 
-def _span_signals(d, lo: int, hi: int, unbroken: np.ndarray) -> np.ndarray:
-    """(S, F) signals observed at every epoch lo..hi with no slip flagged at lo + 1..hi."""
-    return (unbroken[hi + 1] - unbroken[lo] == hi + 1 - lo) & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1])
+def _span_signals(d, lo, hi, unbroken: np.ndarray) -> np.ndarray:
+    """(S, F) signals observed at every epoch lo..hi with no slip flagged at lo + 1..hi; (N, S, F) for arrays
+    lo, hi of N spans."""
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    n_epochs = (hi + 1 - lo).reshape(lo.shape + (1, 1))
+    return (unbroken[hi + 1] - unbroken[lo] == n_epochs) & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1])
 
 
 class PhaseSpans:
@@ -102,9 +105,7 @@ def _qualifying_anchors(d, e: int, ordered: np.ndarray, unbroken: np.ndarray, mi
     while k < len(ordered):
         block = ordered[k:k + size]
         k, size = k + size, 2 * size
-        lo, hi = np.minimum(block, e), np.maximum(block, e)
-        ok = ((unbroken[hi + 1] - unbroken[lo] == (hi + 1 - lo)[:, None, None])
-              & (d.slip_cum[hi + 1] == d.slip_cum[lo + 1]))
+        ok = _span_signals(d, np.minimum(block, e), np.maximum(block, e), unbroken)
         n_ok = ok.reshape(len(block), -1).sum(axis=1)
         yield from block[n_ok >= min_signals]
 
