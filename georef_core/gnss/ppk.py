@@ -376,11 +376,14 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
     conflicts = None
     arrays, config = flt.arrays(), flt.config()
 
+    def filtered(backward: bool, start):
+        # fixes the carrier phase contradicts (a jump against the neighbouring fixes) get their float back
+        return refuse_jumping_fixes(arrays, config, flt.run(backward=backward, known_start_ecef_m=start))[0]
+
     def run_pass(backward: bool, start, stage: int = 2, role: str = ""):
         if progress:
             progress(f"Kalman filter, {'backward' if backward else 'forward'} pass{role}", stage, 4)
-        # fixes the carrier phase contradicts (a jump against the neighbouring fixes) get their float back
-        return refuse_jumping_fixes(arrays, config, flt.run(backward=backward, known_start_ecef_m=start))[0]
+        return filtered(backward, start)
 
     def backward_start(fwd):
         """known-start: the backward pass starts from the forward pass's last fixed position."""
@@ -397,8 +400,7 @@ def _solve(rover_raw: RawObservations, base_raw: RawObservations, nav: Navigatio
         independent = first_backward or known is None
         second = None
         if independent and concurrent_pass.worth_forking(int(data.rover_usable.size) * opts.n_bands):
-            second = concurrent_pass.ForkedPass(lambda: refuse_jumping_fixes(
-                arrays, config, flt.run(backward=not first_backward, known_start_ecef_m=second_start))[0])
+            second = concurrent_pass.ForkedPass(lambda: filtered(not first_backward, second_start))
         try:
             first = run_pass(first_backward, None if first_backward else known)
             if second is None:
