@@ -182,6 +182,22 @@ def _pick_level(overviews, decimation: float) -> int:
     return level
 
 
+def _read_plan(ds, source_bounds, n: int, overviews) -> tuple | None:
+    """For a tile of n pixels whose extent in the raster's CRS is ``source_bounds``: (the part of it inside the
+    raster ``ds``, the decimation the tile needs, the overview level to read (_pick_level), its factor), or None
+    when the tile misses the raster."""
+    rb = ds.bounds
+    sb = source_bounds
+    ib = (max(sb[0], rb.left), max(sb[1], rb.bottom), min(sb[2], rb.right), min(sb[3], rb.top))
+    if ib[0] >= ib[2] or ib[1] >= ib[3]:
+        return None
+    # cells the whole tile spans at full resolution, against the tile's pixels
+    span = max((sb[2] - sb[0]) / abs(ds.res[0]), (sb[3] - sb[1]) / abs(ds.res[1]))
+    decimation = max(1.0, span / n)
+    level = _pick_level(overviews, decimation)
+    return ib, decimation, level, (overviews[level] if level >= 0 else 1)
+
+
 def _source_window(ds, bounds, decimation: float, factor: float):
     """(window, (out_h, out_w), transform of the read array) of the cells of ``ds`` (an overview level of
     ``factor``) under ``bounds`` plus a one-cell margin; a raster with too few overviews (not a COG) is
@@ -229,15 +245,10 @@ def render_tile_rgba(path, info: RasterInfo, z: int, x: int, y: int) -> tuple[np
     with _open(path) as ds0:
         sb = transform_bounds(MERCATOR, ds0.crs, left - pad * px, bottom - pad * px, right + pad * px,
                               top + pad * px, densify_pts=21)
-        rb = ds0.bounds
-        ib = (max(sb[0], rb.left), max(sb[1], rb.bottom), min(sb[2], rb.right), min(sb[3], rb.top))
-        if ib[0] >= ib[2] or ib[1] >= ib[3]:
+        plan = _read_plan(ds0, sb, n, ds0.overviews(1))
+        if plan is None:
             return None, (0, 0), 1
-        # cells the whole tile spans at full resolution, against the tile's pixels
-        span = max((sb[2] - sb[0]) / abs(ds0.res[0]), (sb[3] - sb[1]) / abs(ds0.res[1]))
-        decimation = max(1.0, span / n)
-        level = _pick_level(ds0.overviews(1), decimation)
-        factor = ds0.overviews(1)[level] if level >= 0 else 1
+        ib, decimation, level, factor = plan
     kw = {"overview_level": level} if level >= 0 else {}
     with rasterio.open(path, **kw) as ds:
         win, shape, src_transform = _source_window(ds, ib, decimation, factor)
@@ -364,14 +375,10 @@ class RgbTileDrawer:
         n = TILE_PX
         ds0 = self._base
         sb = self._to_src.transform_bounds(left, bottom, right, top, densify_pts=21)   # transform_bounds's
-        rb = ds0.bounds
-        ib = (max(sb[0], rb.left), max(sb[1], rb.bottom), min(sb[2], rb.right), min(sb[3], rb.top))
-        if ib[0] >= ib[2] or ib[1] >= ib[3]:
+        plan = _read_plan(ds0, sb, n, self._overviews)
+        if plan is None:
             return None
-        span = max((sb[2] - sb[0]) / abs(ds0.res[0]), (sb[3] - sb[1]) / abs(ds0.res[1]))
-        decimation = max(1.0, span / n)
-        level = _pick_level(self._overviews, decimation)
-        factor = self._overviews[level] if level >= 0 else 1
+        ib, decimation, level, factor = plan
         ds = self._dataset(level)
         win, (out_h, out_w), src_transform = _source_window(ds, ib, decimation, factor)
         # tile pixel (column, row) -> source pixel (column, row) of the window read: an affine fitted on 5 x 5 points
