@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..errors import GeorefError, InputFileError
 
-DATUM_HELP = "ellipsoidal, egm96, egm2008 or an EPSG vertical CRS code (EPSG:5773)"
+DATUM_HELP = "ellipsoidal, egm96, egm2008, jgd2011 or an EPSG vertical CRS code (EPSG:5773)"
 
 
 def register(sub) -> None:

@@ -14,6 +14,11 @@ geoid grid); this module appends the folders where installed grids live, in this
   value, as ``egm08_25.gtx`` (PROJ's older name of ``us_nga_egm08_25.tif``, which EPSG:3855's transformation
   accepts) into ``$GEOREF_GRID_CACHE`` (default ``~/.cache/georef/grids``) and used from there. A grid of the
   same name in a folder above wins.
+* the packaged GSIGEO2011 grid (Japan's geoid, JGD2011 (vertical) height EPSG:6695): the PyPI package
+  ``japan-geoid`` embeds GSI's ``gsigeo2011_ver2_2.asc`` (1' x 1.5' over 20-50 N, 120-150 E, heights in 0.1 mm)
+  in its compiled module; on first need it is decoded and written once, value for value, as
+  ``jp_gsi_gsigeo2011.tif`` (the name PROJ's "JGD2011 to JGD2011 height" operation asks for) into the same
+  cache folder.
 
 and switches PROJ's network access off explicitly (``pyproj.network.set_network_enabled(False)``), so a missing
 grid is an error here (vertical_datum.GridMissingError), never a silent download nor a silently
@@ -36,7 +41,7 @@ def grid_dirs() -> list[Path]:
     env = [p for p in os.environ.get(GRID_DIRS_ENV, "").split(os.pathsep) if p.strip()]
     out: list[Path] = []
     cache = grid_cache_dir()
-    packaged = (str(cache),) if (cache / EGM2008_GTX).is_file() else ()
+    packaged = (str(cache),) if any((cache / n).is_file() for n in (EGM2008_GTX, GSIGEO2011_TIF)) else ()
     for d in (*env, *SYSTEM_GRID_DIRS, *packaged):
         p = Path(d).expanduser()
         if p.is_dir() and p not in out:
@@ -189,6 +194,112 @@ def write_gtx_from_netcdf(src: Path, out: Path) -> Path:
             f.write(np.array([lat[0], lon[0], dlat, dlon], ">f8").tobytes())
             f.write(np.array([lat.size, lon.size], ">i4").tobytes())
             f.write(np.ascontiguousarray(h, ">f4").tobytes())
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out
+
+
+# --------------------------------------------------------------------------------------- GSIGEO2011 (Japan)
+GSIGEO2011_TIF = "jp_gsi_gsigeo2011.tif"   # the grid PROJ's "JGD2011 to JGD2011 height" (EPSG:6695) names
+GSIGEO2011_PACKAGE = "japan_geoid"
+GSI_MISSING = 9990000                      # GSI's "no data" (999.0000 m) in the package's 0.1 mm integers
+
+
+def packaged_gsigeo2011_source() -> Path | None:
+    """The installed japan-geoid package's compiled module, which embeds GSIGEO2011 (None without the package)."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(GSIGEO2011_PACKAGE)
+    except (ImportError, ValueError):
+        return None
+    for loc in (spec.submodule_search_locations or []) if spec else []:
+        mods = sorted(Path(loc).glob("japan_geoid*.so")) + sorted(Path(loc).glob("japan_geoid*.pyd"))
+        if mods:
+            return mods[0]
+    return None
+
+
+def ensure_packaged_gsigeo2011() -> Path | None:
+    """The packaged GSIGEO2011 grid as a PROJ grid (jp_gsi_gsigeo2011.tif in grid_cache_dir()), written on first
+    need and again when the package changes; None without the package."""
+    from ..errors import InputFileError
+
+    src = packaged_gsigeo2011_source()
+    if src is None:
+        return None
+    out = grid_cache_dir() / GSIGEO2011_TIF
+    stamp_file = out.with_suffix(".source")
+    stamp = _stamp(src)
+    if out.is_file() and stamp_file.is_file() and stamp_file.read_text() == stamp:
+        return out
+    try:
+        write_gsigeo2011_tif(out)
+        stamp_file.write_text(stamp)
+    except OSError as exc:
+        raise InputFileError(out, f"cannot write the GSIGEO2011 grid decoded from {src} ({exc}); set "
+                                  f"${GRID_CACHE_ENV} to a writable folder") from None
+    return out
+
+
+def decode_gsi_binary(blob: bytes):
+    """japan-geoid's binary form of a GSI grid -> (geoid heights in metres (rows south to north, NaN where GSI has
+    none), west longitude, south latitude, longitude step, latitude step, version). The form: little-endian
+    u16 columns, rows, the steps' denominators (degrees = 1 / d), f32 west longitude, south latitude, u16 kind,
+    10 bytes of version; then one i32 per node, row by row from the south-west: the node's value (0.1 mm) less
+    its prediction from the nodes before it, west + south - south-west, values before the first row or column
+    taken as GSI's no-data 9990000. Written from the file's layout (the residuals sum back to the values: once
+    along the flattened nodes for the difference to the node a row below, then down the rows)."""
+    import struct
+
+    import numpy as np
+
+    from ..errors import ProcessingError
+
+    if len(blob) < 28:
+        raise ProcessingError("GSIGEO2011 from japan-geoid: the package's grid is shorter than its header")
+    nx, ny, dx, dy = struct.unpack("<4H", blob[:8])
+    lon0, lat0 = struct.unpack("<2f", blob[8:16])
+    version = blob[18:28].rstrip(b"\0").decode("ascii", "replace")
+    res = np.frombuffer(blob, "<i4", offset=28).astype(np.int64)
+    if res.size != nx * ny or not (dx and dy):
+        raise ProcessingError(f"GSIGEO2011 from japan-geoid: {res.size} values for a {ny} x {nx} grid")
+    q = GSI_MISSING + np.cumsum(np.cumsum(res).reshape(ny, nx), axis=0)
+    h = np.where(q == GSI_MISSING, np.nan, q / 1e4)
+    return h, float(lon0), float(lat0), 1.0 / dx, 1.0 / dy, version
+
+
+def write_gsigeo2011_tif(out: Path) -> Path:
+    """GSIGEO2011 from japan-geoid as the GeoTIFF PROJ reads for EPSG:6695: float32 geoid heights (m) at the nodes
+    (pixel-is-point), JGD2011 longitude/latitude (EPSG:6668), no-data where GSI has none; written under a
+    temporary name and renamed."""
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from ..errors import ProcessingError
+
+    import japan_geoid
+
+    h, lon0, lat0, dlon, dlat, version = decode_gsi_binary(japan_geoid.load_embedded_gsigeo2011().to_binary())
+    ok = np.isfinite(h)
+    if ok.sum() < 1000 or np.abs(h[ok]).max() > 200:
+        raise ProcessingError(f"GSIGEO2011 from japan-geoid (version {version}): heights missing or outside +-200 m")
+    ny, nx = h.shape
+    north = lat0 + (ny - 1) * dlat
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f"{out.name}.{os.getpid()}.part")
+    nodata = -32768.0
+    try:
+        with rasterio.open(tmp, "w", driver="GTiff", width=nx, height=ny, count=1, dtype="float32", crs="EPSG:6668",
+                           transform=from_origin(lon0 - dlon / 2, north + dlat / 2, dlon, dlat), nodata=nodata,
+                           compress="deflate", tiled=True, blockxsize=256, blockysize=256) as ds:
+            ds.update_tags(AREA_OR_POINT="Point", TYPE="VERTICAL_OFFSET_GEOGRAPHIC_TO_VERTICAL",
+                           source=f"GSIGEO2011 {version} (GSI) as embedded in the japan-geoid package")
+            ds.set_band_description(1, "geoid_undulation")
+            ds.set_band_unit(1, "metre")
+            ds.write(np.where(ok, h, nodata)[::-1].astype(np.float32), 1)
         os.replace(tmp, out)
     finally:
         tmp.unlink(missing_ok=True)

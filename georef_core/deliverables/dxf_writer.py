@@ -118,6 +118,17 @@ def write_dxf(path, polylines=(), points=(), texts=(), crs=None, vertical_datum:
             t.set_placement((x, y, z), align=TextEntityAlignment.MIDDLE_CENTER)
         else:
             t.set_placement((x, y, z))
+    from ezdxf import bbox
+
+    ext = bbox.extents(msp, fast=True)
+    if ext.has_data:
+        # the drawing's extents and its opening view: without them ($EXTMIN/$EXTMAX left at ezdxf's +-1e20 and
+        # the view at 0,0) a CAD program opens a drawing at UTM coordinates looking at empty space
+        lo, hi = tuple(ext.extmin), tuple(ext.extmax)
+        doc.header["$EXTMIN"], doc.header["$EXTMAX"] = lo, hi
+        msp.reset_extents(lo, hi)
+        size = max(hi[0] - lo[0], hi[1] - lo[1], 1.0)
+        doc.set_modelspace_vport(1.1 * size, ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2))
     if crs is not None:
         add_geodata(doc, crs, _centre(polylines, points, texts))
     doc.saveas(path)

@@ -396,7 +396,7 @@ def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = N
             if fmt == "csv":
                 done(fmt, [write_csv(out / f"{t.name.lower()}.csv", t) for t in tables])
             else:
-                about = {"run": str(run_dir), "crs": s.crs_label() if s else "", "heights": vd or "",
+                about = {"run": run_dir.name, "crs": s.crs_label() if s else "", "heights": vd or "",
                          "units": "metres, square metres, cubic metres",
                          "residuals": "d = estimated - surveyed (check points; control points: leave-one-out)"}
                 done(fmt, [write_xlsx(out / "site.xlsx", tables, about)])

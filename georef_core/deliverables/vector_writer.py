@@ -68,7 +68,36 @@ def write_gpkg(path, layers: list[VectorLayer], crs, metadata: dict | None = Non
         n += 1
     if n == 0:
         raise ProcessingError(f"{path}: nothing to write (every layer is empty)")
+    _wkt1_fallback(path, crs)
     return path
+
+
+def _wkt1_fallback(path: Path, crs) -> None:
+    """A 3-D projected CRS (ellipsoidal heights) has no WKT1 form: GDAL writes it into the GeoPackage's
+    ``definition_12_063`` column (WKT2, the crs_wkt extension) and leaves ``definition`` as "undefined", so a reader
+    that knows only WKT1 (the core GeoPackage) saw no CRS at all. ``definition`` then gets the WKT1 of the
+    horizontal CRS; readers of the extension still take the 3-D CRS from ``definition_12_063``, which wins."""
+    import sqlite3
+
+    from pyproj.enums import WktVersion
+
+    horiz = crs.sub_crs_list[0] if crs.is_compound else crs
+    try:
+        wkt1 = (horiz.to_2d() if len(horiz.axis_info) == 3 else horiz).to_wkt(WktVersion.WKT1_GDAL)
+    except Exception:  # noqa: BLE001 (no WKT1 form even in 2-D: leave what GDAL wrote)
+        return
+    if not wkt1:
+        return
+    con = sqlite3.connect(path)
+    try:
+        cols = {r[1] for r in con.execute("PRAGMA table_info(gpkg_spatial_ref_sys)")}
+        if "definition_12_063" in cols:
+            with con:
+                con.execute("UPDATE gpkg_spatial_ref_sys SET definition = ? WHERE definition = 'undefined' AND "
+                            "definition_12_063 NOT IN ('', 'undefined') AND srs_id IN "
+                            "(SELECT srs_id FROM gpkg_geometry_columns)", (wkt1,))
+    finally:
+        con.close()
 
 
 def write_shapefiles(folder, layers: list[VectorLayer], crs) -> list[Path]:

@@ -81,6 +81,11 @@ POINTS = [("CP1", "control", X0 + 10.0, Y0 - 30.0), ("CK1", "check", X0 + 30.0, 
 @pytest.fixture()
 def run_folder(tmp_path):
     """A run folder (dense/, volumes/, residuals.json) and its survey folder (gcp/points.csv)."""
+    return make_run_folder(tmp_path)
+
+
+def make_run_folder(tmp_path):
+    """The run_folder fixture's folders under ``tmp_path`` (also for module-scoped fixtures)."""
     run, survey = tmp_path / "run", tmp_path / "survey"
     write_surface(run / "dense" / "dsm.tif")
     write_ortho(run / "dense" / "ortho.tif")
