@@ -140,8 +140,8 @@ def _run_on_worker(p, api, label: str, concurrency: int, start, timeout_s: float
         steps[s["name"]] = {"state": s["state"], "wall_s": (b - a) if a and b else None,
                             "reused": bool(s.get("reused_from_step_id")), "summary": s.get("summary") or {},
                             "started": a, "finished": b}
-    # a split step is claimed twice (the plan, then the merge): its started_at is the merge's; the step's first
-    # log line (claimed, planning) marks its start
+    # a split step is claimed twice (the plan, then the merge); its started_at is the plan's claim (jobs.claim_step
+    # keeps it through the merge: issue 26); the step's first log line is kept as a cross-check (the earlier of the two)
     for name, s in steps.items():
         r = api.get(f"/api/v1/runs/{run_id}/logs", params={"limit": 5, "step": name})
         assert r.status_code == 200, r.text

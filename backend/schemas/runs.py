@@ -44,7 +44,7 @@ class StepOut(ORM):
     input_hash: str | None
     reused_from_step_id: str | None
     queued_at: datetime | None
-    started_at: datetime | None
+    started_at: datetime | None         # a split step's: its plan's claim, kept through its merge (jobs.claim_step)
     finished_at: datetime | None
     heartbeat_at: datetime | None
     progress_stage: str

@@ -12,14 +12,15 @@ files and one RunStepPart per part and sets the step's phase to "parts" (the ste
 own heartbeat no longer matters, each part has one). Parts are claimed, fenced and reaped like steps. A part
 whose descriptor names ``after`` (earlier parts: a second phase, contract.Split) waits in state "waiting"
 and is queued when the last of those succeeds. The last part to finish puts the step back in the queue with
-phase "merge": the next claim merges."""
+phase "merge": the next claim merges, keeping the step's started_at (its plan's claim: the step's time in the API
+is plan, parts and merge)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import timedelta
 
-from sqlalchemy import delete, func, or_, select, update
+from sqlalchemy import and_, case, delete, func, literal, or_, select, update
 
 from georef_core.steps.contract import part_after
 
@@ -43,13 +44,23 @@ class Claim:
     phase: str | None = None     # "merge": the parts of this split step are done, merge them
 
 
+def _claim_started_at(now):
+    """The ``started_at`` a claim writes: the claim's time, except for the merge of a split step, which keeps its
+    plan's claim time (a split step is claimed for its plan and again for its merge; its started_at .. finished_at
+    is the whole step: plan, parts, merge). A merge claimed again (its worker died) keeps it too; a step claimed
+    again before it was split (attempt 2 of its plan) gets the new claim's time."""
+    return case((and_(RunStep.phase == "merge", RunStep.started_at.is_not(None)), RunStep.started_at),
+                else_=literal(now, RunStep.__table__.c.started_at.type))
+
+
 def claim_step(db: Database, run_id: str, step: str, worker: str) -> Claim | str:
     """The claim, or a word saying why there is nothing to do ('succeeded', 'running', 'cancelled', ...)."""
     now = utcnow()
     with db.session() as s:
         row = s.execute(
             update(RunStep).where(RunStep.run_id == run_id, RunStep.name == step, RunStep.state == "queued")
-            .values(state="running", attempt=RunStep.attempt + 1, worker=worker, started_at=now, heartbeat_at=now,
+            .values(state="running", attempt=RunStep.attempt + 1, worker=worker, started_at=_claim_started_at(now),
+                    heartbeat_at=now,
                     finished_at=None, error=None, progress_stage="starting", progress_done=0, progress_total=0)
             .returning(RunStep.id, RunStep.attempt, RunStep.force, RunStep.phase)).first()
         if row is None:

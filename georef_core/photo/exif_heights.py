@@ -34,6 +34,14 @@ The check (``check_exif_heights``), before the adjustment, on the SfM block and 
      with a forward-looking camera, a multi-direction oblique pattern), and the warning says so: obliques
      that look mostly one way break it by up to their scatter (left unlevelled, a significant drift tilts
      the block by tens of degrees, 70 on the test block: the worse outcome);
+   * checked, where the sparse cloud is given, against the ground (``ground_plane``): an earthworks site is
+     broadly level (assumed: mean slope over the block under ``SITE_SLOPE_MAX_DEG``), so in the frame levelled on
+     the mean axis the cloud's robust plane should tilt by no more than that plus the level's error. Cameras all
+     looking one way (a fixed forward-tilted camera, no gimbal XMP) scatter like a nadir block's and are levelled
+     their tilt wrong on the mean axis; the ground then tilts by that much. Where the ground's tilt exceeds
+     ``SITE_SLOPE_MAX_DEG`` + ``GROUND_CHECK_Z`` x (the level's sigma and the plane's jackknife sigma combined),
+     the block is levelled on the ground plane instead (``level_method`` ``ground-plane``, 1 sigma half the slope
+     bound), and the text says so, naming the tilt;
 3. the EXIF heights minus the block's heights (the levelled block's; the 7-parameter similarity's where
    the block is not levelled, which sees only the part of a drift a tilt cannot take) regressed on time,
    **per flight** (``flight``: the adjustment's flights, ``steps.georef.image_flights``: DJI flight folders
@@ -74,11 +82,19 @@ GIMBAL_SIGMA_DEG = 1.0
 # without recorded attitudes: the SfM optical axes' RMS angle from their mean direction above this is an oblique
 # or mixed oblique + nadir block (a nadir block's axes: the body's attitude, a few degrees; measured in the docs)
 OBLIQUE_AXIS_RMS_DEG = 10.0
+# the ground check of a level taken without recorded attitudes (cameras all looking one way look like a nadir block):
+# assumed bound on an earthworks site's mean ground slope over the photographed block (an assumption, not measured:
+# platforms, haul roads and stockpile yards are graded to a few percent; Caliterra's real block: 5.1 deg, docs)
+SITE_SLOPE_MAX_DEG = 10.0
+GROUND_CHECK_Z = 2.326    # one-sided 1 % quantile of the normal: the same 0.01 level as the drift's test
 # what a levelled block's level rests on, per level_method (the warning and the georef summary's accuracy text)
 LEVEL_BASIS = {"gimbal": "the cameras' recorded gimbal attitudes",
                "nadir": "the assumption that the cameras' mean optical axis is nadir",
                "balanced-oblique": "the assumption that the look directions of this oblique or mixed block balance "
-                                   "(their mean axis nadir)"}
+                                   "(their mean axis nadir)",
+               "ground-plane": "the sparse cloud's ground plane, the site taken as broadly level (its mean slope under "
+                               f"{SITE_SLOPE_MAX_DEG:g} deg): the cameras' mean axis, off nadir, was contradicted by the "
+                               "ground"}
 MIN_GIMBAL_PHOTOS = 6     # recorded attitudes are used where at least this many registered photos carry one
 
 
@@ -157,6 +173,71 @@ def level_on_recorded_axes(axis_model: np.ndarray, axis_expected_enu: np.ndarray
             "random_sigma_deg": math.degrees(s_ang * math.sqrt(inv_max))}
 
 
+def ground_plane(points: np.ndarray, above: np.ndarray, up: np.ndarray, max_points: int = 20000) -> dict | None:
+    """A robust plane through the sparse cloud ``points`` (M, 3; any frame), its normal turned towards the cameras
+    ``above`` (N, 3), and its tilt from the direction ``up`` (unit, same frame) with that tilt's 1 sigma.
+
+    The plane: total least squares (SVD) on the points left after trimming, five times, those farther from the
+    plane than 2.5 robust sigmas (1.4826 MAD of the orthogonal distances): stockpiles, machines and false matches
+    are not ground. Its sigma: a delete-one-cell jackknife over a 4 x 4 grid of the points' horizontal extent (the
+    ground's relief is spatially correlated, so the points' formal sigma would be far too small). ``tilt_deg``: the
+    normal's angle from ``up``; ``tilt_sigma_deg``: the jackknife's RMS of that angle's change (both components);
+    ``normal``; ``n_points`` / ``n_inliers``; None with fewer than 30 points."""
+    P = np.asarray(points, float).reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if len(P) < 30:
+        return None
+    if len(P) > max_points:      # a fixed subsample: the same answer on every run
+        P = P[np.random.default_rng(0).choice(len(P), max_points, replace=False)]
+    up = np.asarray(up, float) / np.linalg.norm(up)
+
+    def fit(Q):
+        c = Q.mean(axis=0)
+        n = np.linalg.svd(Q - c, full_matrices=False)[2][2]
+        return c, n
+
+    keep = np.ones(len(P), bool)
+    for _ in range(5):
+        c, nrm = fit(P[keep])
+        r = (P - c) @ nrm
+        mad = float(np.median(np.abs(r[keep] - np.median(r[keep]))))
+        new_keep = np.abs(r - np.median(r[keep])) < 2.5 * max(1.4826 * mad, 1e-9)
+        if new_keep.sum() < 30 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    Q = P[keep]
+    c, nrm = fit(Q)
+    if float((np.asarray(above, float).reshape(-1, 3).mean(axis=0) - c) @ nrm) < 0:
+        nrm = -nrm
+
+    def tilt_vec(n):
+        """The normal's small-angle offset from ``up`` in two fixed directions across it (radians)."""
+        return np.array([n @ e1, n @ e2]) / max(float(n @ up), 1e-9)
+
+    e1 = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    # the grid on the plane's own in-plane axes
+    u, v = (Q - c) @ np.cross(nrm, e2), (Q - c) @ np.cross(e1, nrm)
+    iu = np.clip(((u - u.min()) / max(np.ptp(u), 1e-9) * 4).astype(int), 0, 3)
+    iv = np.clip(((v - v.min()) / max(np.ptp(v), 1e-9) * 4).astype(int), 0, 3)
+    cell = iu * 4 + iv
+    cells = [k for k in np.unique(cell) if np.sum(cell == k) >= 3]
+    sigma = math.nan
+    if len(cells) >= 3:
+        tv = []
+        for k in cells:
+            sel = cell != k
+            _, nk = fit(Q[sel])
+            tv.append(tilt_vec(nk if nk @ nrm > 0 else -nk))
+        tv = np.array(tv)
+        g = len(tv)
+        sigma = math.degrees(math.sqrt((g - 1) / g * float(np.sum((tv - tv.mean(axis=0)) ** 2))))
+    tilt = math.degrees(math.acos(float(np.clip(nrm @ up, -1.0, 1.0))))
+    return {"tilt_deg": tilt, "tilt_sigma_deg": sigma, "normal": nrm, "n_points": int(len(P)),
+            "n_inliers": int(keep.sum())}
+
+
 def _drift_fit(d: np.ndarray, t: np.ndarray, flight: np.ndarray) -> dict | None:
     """Offset + rate per flight (one joint least-squares fit, one residual variance) of ``d`` on ``t``, and the
     F-test of all the rates being zero; None when there are no degrees of freedom left."""
@@ -209,14 +290,17 @@ def _drift_fit(d: np.ndarray, t: np.ndarray, flight: np.ndarray) -> dict | None:
 def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m: np.ndarray, time_s: np.ndarray,
                        sigma_v_m: float, time_source: str = "EXIF times", sigma_h_m: float | None = None,
                        flight: np.ndarray | None = None, gimbal_pitch_deg: np.ndarray | None = None,
-                       gimbal_yaw_deg: np.ndarray | None = None, level_at: str = "mean") -> dict:
+                       gimbal_yaw_deg: np.ndarray | None = None, level_at: str = "mean",
+                       points_sfm: np.ndarray | None = None) -> dict:
     """The check above. ``centre_sfm`` / ``axis_sfm``: (N, 3) camera centres and optical axes (unit, +z of
     the camera) in the SfM frame; ``exif_enu_m`` (N, 3) the EXIF positions in local ENU; ``time_s`` (N,)
     exposure times (any origin); ``sigma_v_m`` their stated vertical sigma; ``flight`` (N,) each photo's flight
     (any labels; None: one flight); ``gimbal_pitch_deg`` / ``gimbal_yaw_deg`` (N,) the recorded gimbal attitude
     (DJI XMP; NaN where a photo has none); ``level_at`` where each flight's level is taken: ``"mean"`` its mean
     time (least scatter; a drift with no known zero, e.g. a camera's own GPS), ``"start"`` its first photo (heights
-    relative to a barometer zeroed at take-off, DJI XMP ``RelativeAltitude``: the drift starts from zero there).
+    relative to a barometer zeroed at take-off, DJI XMP ``RelativeAltitude``: the drift starts from zero there);
+    ``points_sfm`` (M, 3) the sparse cloud in the SfM frame, for the ground check of a level taken without recorded
+    attitudes (None: no check).
     Returns a dict (the summary's ``exif_heights``) with ``inconsistent``
     (the drift), ``levelled``, the statistics, and when levelled ``height_enu_m`` (N,) and ``sigma_v_m`` to give
     the adjustment, ``level_sigma_deg``, ``assumption`` and a ``text``."""
@@ -273,6 +357,25 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
         # assumption by up to their scatter, which the warning states
         up7, method = -axis7, ("balanced-oblique" if rms_axis > OBLIQUE_AXIS_RMS_DEG else "nadir")
         level_sigma = math.hypot(NADIR_SIGMA_DEG, axis_scatter_deg)
+    # the ground check: in the frame levelled so far, the sparse cloud's robust plane should be about as level as an
+    # earthworks site is (mean slope under SITE_SLOPE_MAX_DEG); without recorded attitudes a ground tilted beyond that
+    # plus GROUND_CHECK_Z x the level's and the fit's sigma says the mean axis is not nadir (cameras all looking one
+    # way, whose axes scatter like a nadir block's), and the block is levelled on the ground plane instead
+    ground = None
+    if up7 is not None and points_sfm is not None:
+        u7 = up7 / np.linalg.norm(up7)
+        gp = ground_plane(np.asarray(points_sfm, float).reshape(-1, 3) @ sim7.R.T, C @ sim7.R.T, u7)
+        if gp is not None:
+            s_g = gp["tilt_sigma_deg"]
+            bound = SITE_SLOPE_MAX_DEG + GROUND_CHECK_Z * math.hypot(level_sigma, s_g if math.isfinite(s_g) else 0.0)
+            ground = {"tilt_deg": round(gp["tilt_deg"], 2),
+                      "tilt_sigma_deg": round(s_g, 2) if math.isfinite(s_g) else None,
+                      "threshold_deg": round(bound, 2), "points": gp["n_points"], "inliers": gp["n_inliers"],
+                      "of_level": method, "level_rejected": False}
+            if method in ("nadir", "balanced-oblique") and math.isfinite(s_g) and gp["tilt_deg"] > bound:
+                ground["level_rejected"] = True
+                up7, method = gp["normal"], "ground-plane"
+                level_sigma = math.hypot(SITE_SLOPE_MAX_DEG / 2, s_g)
     if up7 is not None:
         R_lev = _rotation_onto(up7, np.array([0.0, 0.0, 1.0])) @ sim7.R
         P = sim7.scale * C @ R_lev.T
@@ -322,6 +425,8 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
                        "drift_m": round(r["drift_m"], 2),
                        "drift_sigma_m": None if r["drift_sigma_m"] is None else round(r["drift_sigma_m"], 2),
                        "level_m": round(r["level_m"], 2)} for r in rows]
+    if ground is not None:
+        out["ground"] = ground
     if gim is not None:
         out["gimbal"] = {"photos": int(rec.sum()), "residual_rms_deg": round(gim["residual_rms_deg"], 2),
                          "geometry_factor": round(gim["geometry_factor"], 2) if math.isfinite(gim["geometry_factor"])
@@ -340,6 +445,9 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
             lev += f"; the recorded gimbal attitudes would level it to {level_sigma:.1f} deg"
         elif up7 is None:
             lev = f"a similarity onto them; {not_levelled_why}"
+        if method == "ground-plane":
+            lev += (f"; on the cameras' mean axis the sparse cloud's ground would tilt {ground['tilt_deg']:.1f} deg: "
+                    "cameras looking one way, the drift tested against the ground-levelled block")
         out["text"] = (f"EXIF heights consistent with the block at their stated {sigma_v_m:g} m: {stat}; the block is "
                        f"levelled by them ({lev})")
         return out
@@ -372,6 +480,17 @@ def check_exif_heights(centre_sfm: np.ndarray, axis_sfm: np.ndarray, exif_enu_m:
                       f"leave the block tilted by up to {rms_axis:.0f} deg")
         how = (f"on {LEVEL_BASIS[method]}, its axes scattering {rms_axis:.1f} deg with no gimbal attitude recorded "
                f"(obliques looking mostly one way would leave it tilted by up to that much)")
+    elif method == "ground-plane":
+        why = (f"levelled on the cameras' mean axis (axes scatter {rms_axis:.1f} deg RMS, no gimbal attitude recorded) "
+               f"the sparse cloud's ground plane tilts {ground['tilt_deg']:.1f} deg (jackknife sigma "
+               f"{ground['tilt_sigma_deg']:.1f} deg), beyond the {ground['threshold_deg']:.1f} deg a site mean slope of "
+               f"{SITE_SLOPE_MAX_DEG:g} deg and that level's error allow: cameras all looking one way (e.g. a fixed "
+               f"forward-tilted camera) would be levelled about {ground['tilt_deg']:.0f} deg wrong on their mean axis")
+        assumption = (f"{why}; the ground plane taken as level instead (1 sigma {level_sigma:.1f} deg: the "
+                      f"{SITE_SLOPE_MAX_DEG:g} deg slope bound taken as 2 sigma, with the fit's): a site that really "
+                      f"slopes leaves the block tilted by its mean slope")
+        how = (f"on {LEVEL_BASIS[method]} ({why}; a site that really slopes leaves the block tilted by its mean "
+               f"slope)")
     else:
         assumption = (f"the cameras' mean optical axis is nadir (1 sigma {NADIR_SIGMA_DEG:g} deg, an assumption for a "
                       f"mapping flight; {axis_scatter_deg:.2f} deg from the axes' scatter)")

@@ -296,7 +296,9 @@ def _photo_position_gnss(image_dir: Path, image_names: list[str], meta: dict, op
 def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list, flights: dict | None = None) -> dict | None:
     """EXIF GPS heights checked against the SfM block (photo/exif_heights.py), per flight (``flights``: image ->
     flight, the adjustment's, ``image_flights``); where they drift and the block can be levelled (on the photos'
-    recorded gimbal attitudes, else on the nadir-axis assumption unless the axes show an oblique block), the
+    recorded gimbal attitudes, else on the nadir-axis assumption unless the axes show an oblique block; without
+    attitudes checked against the sparse cloud's ground plane, ``rec.points_xyz``, and levelled on it where the mean
+    axis is contradicted: cameras all looking one way), the
     heights given to the adjustment (``gnss_enu``, in place) are the levelled block's at one level from the EXIF
     heights (each flight's at its first photo for heights from a barometer zeroed at take-off, DJI XMP
     RelativeAltitude, else at its mean time; averaged over the photos), and the horizontal sigmas are raised to the positions' scatter, so that the block is levelled instead
@@ -323,7 +325,8 @@ def _exif_heights(rec, gnss: ImageGnss, gnss_enu: dict, warnings: list, flights:
         gim = np.array([g_of.get(n, (np.nan, np.nan)) for n in names], float).reshape(-1, 2)
     out = check_exif_heights(C, A, X, t, EXIF_GPS_SIGMA_M[1], source, sigma_h_m=EXIF_GPS_SIGMA_M[0], flight=fl,
                              gimbal_pitch_deg=gim[:, 0], gimbal_yaw_deg=gim[:, 1],
-                             level_at="start" if gnss.heights_from_takeoff else "mean")
+                             level_at="start" if gnss.heights_from_takeoff else "mean",
+                             points_sfm=getattr(rec, "points_xyz", None))
     if out.get("inconsistent") and not out.get("levelled"):
         warnings.append(out["text"])
     if out.get("levelled"):
@@ -898,6 +901,12 @@ class _Adjusted:
     # per-flight GNSS offsets, where modelled: their covariance (3F, 3F) and each camera centre's with them
     flight_offset_cov_m2: np.ndarray | None = None
     camera_flight_cov_m2: np.ndarray | None = None
+    # the adjustment's free global parameters (intrinsics, lever arm, delay, ...): names, covariance (G, G) and
+    # each camera's covariance with them (N, 6, G), for the check points' share of their errors
+    # (globals_point_cov); None where no bundle adjustment ran (similarity)
+    global_names: list | None = None
+    global_cov: np.ndarray | None = None
+    camera_global_cov: np.ndarray | None = None
 
     def camera_intrinsics(self, intr: np.ndarray | None = None) -> np.ndarray:
         """(N, 8) each image's intrinsics (its group's row of ``intr``, default the adjusted ones)."""
@@ -1164,6 +1173,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
     lever_sigma = None
     delay_sigma = None
     flight_cov = cam_flight_cov = None
+    glob: tuple = (None, None, None)     # the bundle adjustment's globals: names, covariance, cameras' with them
     correlations: dict = {}
     gnss_rows: list[dict] = []
     stats: dict = {"mode": opts.mode}
@@ -1212,6 +1222,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                 "propagated into the covariances (only the flights' differences are measured, by the tie points)")
         intr = prob.intrinsics
         isig = _intrinsics_sigmas(res, G, fisheye)
+        glob = (res.global_names, res.global_cov, res.camera_global_cov)
         R, C = prob.R_cam_to_enu, prob.centre_enu_m
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
@@ -1257,6 +1268,7 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
         if w:
             warnings.append(w)
         isig = _intrinsics_sigmas(res, G, fisheye)
+        glob = (res.global_names, res.global_cov, res.camera_global_cov)
         ccov = res.camera_cov[:, 3:, 3:]
         P, prgb = prob.points_enu_m[:len(tie_xyz)], rgb
     else:  # similarity
@@ -1326,7 +1338,8 @@ def _adjust(opts: GeorefOptions, frame: ProjectFrame, rec, control: ControlData,
                      points_rgb=prgb, gnss_rows=gnss_rows, blunders=blunders, used_measurements=used, stats=stats,
                      rerun=rerun, fisheye=fisheye, camera_group=cam_group, camera_velocity_enu_m_s=cam_vel,
                      image_height_px=heights, readout_s=np.asarray(readout, float).reshape(G),
-                     readout_sigma_s=readout_sigma, flight_offset_cov_m2=flight_cov, camera_flight_cov_m2=cam_flight_cov)
+                     readout_sigma_s=readout_sigma, flight_offset_cov_m2=flight_cov, camera_flight_cov_m2=cam_flight_cov,
+                     global_names=glob[0], global_cov=glob[1], camera_global_cov=glob[2])
 
 
 def _flight_offsets_summary(flight_prior: dict, gn: list[str], res, estimated_by: str) -> dict:
@@ -1420,6 +1433,57 @@ def flight_offset_point_cov(camera_flight_cov_m2: np.ndarray, flight_offset_cov_
     return M @ Co @ M.T
 
 
+def globals_point_cov(adj: _Adjusted, uv_px: np.ndarray, cams: np.ndarray, R: np.ndarray, C: np.ndarray,
+                      intr: np.ndarray, readout_s=None) -> np.ndarray | None:
+    """(3, 3) the part of a triangulated point's covariance that the adjustment's global parameters put there
+    (intrinsics, lever arm, delay; not the per-flight offsets, which flight_offset_point_cov carries), or None
+    where the adjustment gave no globals. Linear propagation as for the flight offsets: each observing camera
+    moves with the globals g by M_i = Cov(cam_i, g) Cov(g)^-1, so the point moves by V = dX/dg (the intrinsics
+    changed and its cameras moved by M_i, at once; central differences of the triangulation) and carries
+    V Cov(g) V^T. In a nadir block at one height the focal length is set by its prior and moves every point
+    along the axis by -(df/f) x the flying height, which the image noise alone does not state."""
+    from scipy.spatial.transform import Rotation
+
+    names, cov, cam_cov = adj.global_names, adj.global_cov, adj.camera_global_cov
+    if not names or cov is None or cam_cov is None:
+        return None
+    pn = list(cm.param_names(adj.fisheye))
+    sel, where = [], []                  # global column; (group, intrinsic index) or None for lever / delay
+    for k, n in enumerate(names):
+        g, _, key = n.rpartition(".")
+        if key in pn and (g == "" or g.startswith("cam")):
+            sel.append(k)
+            where.append((int(g[3:]) - 1 if g else 0, pn.index(key)))
+        elif n.startswith("lever_") or n == "delay":
+            sel.append(k)
+            where.append(None)
+    if not sel:
+        return None
+    Cg = cov[np.ix_(sel, sel)]
+    sd = np.sqrt(np.clip(np.diag(Cg), 0.0, None))
+    if not np.all(np.isfinite(sd)) or not np.any(sd > 0):
+        return None
+    used = np.unique(cams)
+    M = cam_cov[used][:, :, sel] @ np.linalg.pinv(Cg)            # (n, 6, k) cameras' move per unit of each global
+    intr = np.asarray(intr, float).reshape(-1, 8)
+    shift = adj.centre_shift_enu_m(cams, uv_px, readout_s)
+    V = np.zeros((3, len(sel)))
+    for j, w in enumerate(where):
+        if sd[j] <= 0:
+            continue
+        x = []
+        for h in (sd[j], -sd[j]):
+            Rh, Ch, ih = R.copy(), C.copy(), intr.copy()
+            Rh[used] = Rotation.from_rotvec(M[:, :3, j] * h).as_matrix() @ R[used]
+            Ch[used] = C[used] + M[:, 3:, j] * h
+            if w is not None:
+                ih[w] += h
+            x.append(triangulate(uv_px, cams, Rh, Ch, adj.camera_intrinsics(ih), fisheye=adj.fisheye,
+                                 centre_shift_enu_m=shift).xyz_enu_m)
+        V[:, j] = (x[0] - x[1]) / (2.0 * sd[j])
+    return V @ Cg @ V.T
+
+
 def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), R=None, C=None, intr=None,
                  kind="check points", readout_s: float | None = None) -> ResidualTable:
     R = adj.R_cam_to_enu if R is None else R
@@ -1439,6 +1503,9 @@ def _check_table(adj: _Adjusted, frame, control: ControlData, roles=("check",), 
         cov = t.cov_enu_m2
         if cov is not None and adj.camera_flight_cov_m2 is not None:
             cov = cov + flight_offset_point_cov(adj.camera_flight_cov_m2[np.unique(cams)], adj.flight_offset_cov_m2)
+        g_cov = globals_point_cov(adj, uv, cams, R, C, intr, readout_s) if cov is not None else None
+        if g_cov is not None:
+            cov = cov + g_cov
         table.rows.append(_residual_row(name, p.role, t.xyz_enu_m, cov, frame, control, len(ms)))
     return table
 

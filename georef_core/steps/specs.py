@@ -76,7 +76,7 @@ GNSS = StepSpec(
 
 # -------------------------------------------------------------------------------------------------- georef
 GEOREF = StepSpec(
-    name="georef", title="Georeferencing", version=4,
+    name="georef", title="Georeferencing", version=5,
     description="Structure from motion, GNSS-aided bundle adjustment with lever arm and trigger delay, and the "
                 "check-point residual table (docs/georeferencing.md).",
     function="georef_core.steps.georef:step_entry", depends_on=("gnss",), heavy=True,

@@ -7,6 +7,7 @@ step and the run, naming the part; and in the embedded shape (SQLite) with one w
 from __future__ import annotations
 
 import json
+from datetime import datetime
 
 import pytest
 
@@ -99,6 +100,10 @@ def test_parts_in_the_embedded_shape(platform, tmp_path, toysplit_registered):
     step = next(s for s in final["step_details"] if s["name"] == "toysplit")
     assert step["summary"]["parts"] == 3 and step["summary"]["processes"] == 1
     assert step["summary"]["read"] == [[], [], [0, 1]]          # the second phase found the first's files
+    # the step's time in the API is its whole time: from its plan's claim (before any part) to its merge's end
+    at = lambda v: datetime.fromisoformat(v.replace("Z", "+00:00"))  # noqa: E731
+    assert at(step["started_at"]) <= min(at(q["started_at"]) for q in step["parts"]), step
+    assert at(step["finished_at"]) >= max(at(q["finished_at"]) for q in step["parts"]), step
     merged = json.loads(api.get(f"/api/v1/runs/{run['id']}/results/files/toysplit/result.json").text)
     assert merged == _local_result(tmp_path, 2, phases=True)
     logs = api.get(f"/api/v1/runs/{run['id']}/logs").json()
