@@ -228,6 +228,7 @@ def dd_rows(d, c, e, obs_ok, code_ok, sd_phase, sd_code, x, los):
     n_s, n_f = obs_ok.shape
     el, sys_code, is_glonass, lam = d.el[e], d.sys_code, d.is_glonass, d.lam
     age = d.age_s[e]
+    trop_dh, up = d.trop_dh[e], d.up[e]
     n_kin = c.n_kin
     m_max = 2 * n_s * n_f
     v = np.empty(m_max)
@@ -266,7 +267,7 @@ def dd_rows(d, c, e, obs_ok, code_ok, sd_phase, sd_code, x, los):
                     band[r] = b
                     refs[r] = ref
                     for k in range(3):
-                        h_pos[r, k] = -(los[s, k] - los[ref, k])
+                        h_pos[r, k] = -(los[s, k] - los[ref, k]) + (trop_dh[s] - trop_dh[ref]) * up[k]
                     if is_code:
                         v[r] = sd_code[s, b] - sd_code[ref, b]
                     else:

@@ -8,7 +8,7 @@ from .georef_options import FACTORY_CALIBRATION_CHOICES, FLIGHT_OFFSET_CHOICES, 
 
 # ---------------------------------------------------------------------------------------------------- gnss
 GNSS = StepSpec(
-    name="gnss", title="GNSS baseline processing (PPK)", version=3,
+    name="gnss", title="GNSS baseline processing (PPK)", version=4,
     description="The drone receiver's raw observations against the base: antenna positions, velocities and "
                 "covariances at every epoch and camera trigger (docs/gnss.md).",
     function="georef_core.steps.gnss_solve:step_entry",

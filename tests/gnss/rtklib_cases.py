@@ -62,6 +62,23 @@ def reversed_conf(conf: Path, out_dir: Path) -> Path | None:
     return out
 
 
+_NITER_LINE = re.compile(r"^(pos2-niter\s*=\s*)(\d+)", re.MULTILINE)
+
+
+def iterated_conf(conf: Path, out_dir: Path, niter: int = 3) -> Path:
+    """A copy of an rnx2rtkp configuration in out_dir with `niter` measurement-update iterations per epoch
+    (pos2-niter), everything else as it is. With one (the reference cases' setting) demo5 evaluates the rover
+    troposphere at the single-point position the epoch starts from and has no troposphere partial in its design
+    matrix, so its fixed heights carry ~0.9 mm per metre of single-point height error; iterating re-evaluates it
+    at the updated position (docs/gnss.md, "Troposphere height partial")."""
+    text = Path(conf).read_text()
+    line = f"pos2-niter         ={niter}"
+    text = _NITER_LINE.sub(line, text) if _NITER_LINE.search(text) else text.rstrip("\n") + "\n" + line + "\n"
+    out = Path(out_dir) / f"{Path(conf).stem}_niter{niter}.conf"
+    out.write_text(text)
+    return out
+
+
 def reverse_passes(conf, rover, base, navs, out_dir, tag: str = "") -> dict:
     """For a forward (or backward) configuration, both engines' solutions of the same files the other way,
     as judge_fixes takes them ({"ours_reverse", "ref_reverse"}: the witnesses where the carrier phase is not

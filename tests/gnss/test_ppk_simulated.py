@@ -318,12 +318,6 @@ def test_rover_troposphere_is_evaluated_at_the_antenna_position():
     assert np.nanmax(np.abs(dd)) < 2e-4
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "engine problem found 2026-11-27 (docs/dji.md 'The +6 mm'): the position rows of the double differences lack "
-    "the rover troposphere's height partial, so a fixed height follows the single-point height by ~0.9 mm per "
-    "metre (+9.7 mm here). The one-line fix (rtk_kernels.dd_rows) is held back: with it three shared u-blox walk "
-    "comparisons against demo5 fail (vertical median 5.6 mm > 5 mm; a forward fix of ours ~2.5-3.4 m from both "
-    "engines' other solutions, there before, becomes visible where demo5 fixes) and need judging first"))
 def test_fixed_height_does_not_follow_the_single_point_height(monkeypatch):
     """Kinematic fixed heights must not depend on the single-point height the filter starts each epoch from
     (issue 21: the rover troposphere's height partials were missing from the position rows, so a single-point
