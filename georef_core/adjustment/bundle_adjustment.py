@@ -188,6 +188,10 @@ class BundleResult:
     flight_offset_enu_m: np.ndarray | None = None
     flight_offset_cov_m2: np.ndarray | None = None
     camera_flight_cov_m2: np.ndarray | None = None
+    # each camera's covariance with the free global parameters (N, 6, G): rotation (rad, world axes) and centre
+    # (m) rows, ``global_names`` columns; what a point triangulated afterwards needs to carry the globals' share
+    # (e.g. the focal length's) of its error (georef's check-point tables)
+    camera_global_cov: np.ndarray | None = None
 
     @property
     def global_sigma(self) -> np.ndarray:
@@ -792,9 +796,11 @@ class BundleAdjuster:
             fl = {"flight_offset_enu_m": p.offsets().copy(), "flight_offset_cov_m2": Sinv[fc, fc].copy(),
                   "camera_flight_cov_m2": np.stack([Sinv[lay.cam0 + 6 * i + 3: lay.cam0 + 6 * i + 6, fc]
                                                     for i in range(lay.n_cam)])}
+        cam_glob = np.stack([Sinv[lay.cam0 + 6 * i: lay.cam0 + 6 * i + 6, :G] for i in range(lay.n_cam)]) \
+            if lay.n_cam else np.zeros((0, 6, G))
         return BundleResult(**fl, problem=p, iterations=iters, converged=converged, rms_reprojection_px=rms, sigma0=sig0,
                             global_names=list(lay.names), global_values=g_vals, global_cov=Sinv[:G, :G].copy(),
-                            camera_cov=cam_cov, obs_outlier=obs_out, gnss_outlier=gnss_out, gnss_residual_enu_m=g,
+                            camera_cov=cam_cov, camera_global_cov=cam_glob, obs_outlier=obs_out, gnss_outlier=gnss_out, gnss_residual_enu_m=g,
                             obs_residual_px=res_px, point_cov_enu_m2=pcov)
 
 

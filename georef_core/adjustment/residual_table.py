@@ -20,7 +20,9 @@ class ResidualRow:
     dz_m: float
     d3_m: float
     n_images: int
-    sigma_m: tuple[float, float, float] | None = None  # predicted (triangulation) sigma E, N, h
+    # predicted sigma E, N, h: the triangulation's (image noise), the per-flight offsets' and the adjustment's
+    # globals' share (focal length etc.; georef.globals_point_cov)
+    sigma_m: tuple[float, float, float] | None = None
     note: str = ""
 
 
