@@ -547,8 +547,9 @@ def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, 
 
         t0 = time.perf_counter()
         report("radiometry samples", 0, 1)
-        obs = depth_observations(views, grids, {i: np.load(p) for i, p in depth_paths.items()})
-        save_observations(Path(radiometry_obs), obs, views)
+        obs, xyz = depth_observations(views, grids, {i: np.load(p) for i, p in depth_paths.items()},
+                                      with_points=True)
+        save_observations(Path(radiometry_obs), obs, views, points_enu_m=xyz)
         n_obs = int(len(obs.point))
         t_rad = time.perf_counter() - t0
         report("radiometry samples", 1, 1)

@@ -11,7 +11,8 @@ several workers.
   (steps/dense.py run_depth_maps), in ``<dense>/parts/<k>/depth/``;
 * the radiometry part (phase 1b, after every depth part; when the orthophoto is compensated): the block's
   orthophoto gains and vignetting solved once from the observations the depth parts gathered from their depth
-  maps (dense/block_radiometry.py), ``<dense>/parts/<k>/radiometry.json``; every tile mosaics with it;
+  maps (dense/block_radiometry.py), each first tested against its view's own depth map (every image's exists
+  by then; read one at a time), ``<dense>/parts/<k>/radiometry.json``; every tile mosaics with it;
 * tiles (phase 2, ``"after"`` the depth parts whose maps they read and the radiometry part): the images whose ground footprint meets
   the core grown by ``tile_margin`` footprints, fused from those depth maps with their block neighbours
   confirming (run_dense with a BlockDepth: no stereo matching), then outliers, DSM and orthophoto on the
@@ -208,8 +209,12 @@ def plan(workspace, options: dict, context: dict) -> list[dict]:
     grid["depth_parts"] = len(depth_parts)
     radiometry = []   # phase 1b: the block's orthophoto radiometry, once, from every depth part's observations
     if BLOCK_RADIOMETRY and opts.ortho and opts.ortho_options.compensate:
+        # it also reads every image's fine depth map (one at a time): each observation's occlusion test in its
+        # view's own map, which only exists for the whole block once every depth part has run
         radiometry = [{"phase": "radiometry", "after": list(range(len(depth_parts))),
-                       "reads": ["depth_summary.json", "radiometry_obs.npz"], "grid": grid}]
+                       "depth": {n: [owner[n], stem[n]] for n in sorted(owner)},
+                       "reads": ["depth_summary.json", "radiometry_obs.npz"]
+                       + sorted({f"depth/{stem[n]}.npy" for n in owner}), "grid": grid}]
     grid["first_tile"] = len(depth_parts) + len(radiometry)
     grid["plan_s"] = plan_s
     rad_after = [len(depth_parts)] if radiometry else []
@@ -407,10 +412,44 @@ def _radiometry_part(workspace, opts, part: dict, progress) -> None:
     if missing:
         raise ProcessingError(f"orthophoto radiometry: depth part {missing[0].parent.name} left no "
                               f"{OBS_FILE}: the depth parts run before it")
-    result = solve_block(files, vignetting=opts.ortho_options.compensate_vignetting)
+    result = solve_block(files, vignetting=opts.ortho_options.compensate_vignetting,
+                         depth_map_of=_depth_map_reader(workspace, opts, part))
     result["index"] = k
     (workspace.part_dir(STEP, k) / MODEL_FILE).write_text(json.dumps(result, indent=1))
     report("orthophoto radiometry", 1, 1)
+
+
+def _depth_map_reader(workspace, opts, part: dict):
+    """name -> (the image's depth-map grid, its fine depth map) or None (no map: the plan named none for it, or
+    its depth part left none): the radiometry part's occlusion test reads the maps through it, one at a time."""
+    depth = part.get("depth") or {}
+    if not depth:
+        return None
+    from ..dense.camera_views import views_from_oriented
+    from ..photo.oriented_images import read_oriented_images
+
+    path = _oriented_path(workspace, opts)
+    oriented = read_oriented_images(path)
+    subset = replace(oriented, images=[im for im in oriented.images if im.name in depth])
+    views = {v.name: v for v in views_from_oriented(subset, opts.max_image_size, source=path)}
+
+    def read(name: str):
+        if name not in depth or name not in views:
+            return None
+        f = workspace.part_dir(STEP, int(depth[name][0])) / "depth" / f"{depth[name][1]}.npy"
+        if not f.is_file():
+            return None
+        d = np.load(f)
+        if d.ndim != 2:
+            raise ProcessingError(f"orthophoto radiometry: depth map {f} is not a 2-D array (shape {d.shape})")
+        v = views[name]
+        if opts.depth_map_downscale != 1:
+            v = v.scaled(1.0 / opts.depth_map_downscale)
+        if (v.height, v.width) != d.shape:   # the grid the map was computed on (same view, its size)
+            v = v.scaled_to(d.shape[1], d.shape[0])
+        return v, d
+
+    return read
 
 
 def harmonise_tile_gains(tile_gains: list[dict]) -> tuple[np.ndarray, dict]:
@@ -674,7 +713,8 @@ def merge(workspace, options: dict, parts: list[dict], progress, context: dict) 
                                   if block_rad and block_rad.get("solved") else
                                   "estimated per tile (its images and margin), the tiles' gains harmonised on the "
                                   "images they share"),
-                   **({"block_radiometry": {k2: block_rad.get(k2) for k2 in ("summary", "observations", "seconds")}}
+                   **({"block_radiometry": {k2: block_rad.get(k2)
+                                            for k2 in ("summary", "observations", "seconds", "occlusion")}}
                       if block_rad else {}),
                    "tile_harmonisation": harmonised} if opts.ortho else None),
         "dsm_vertical_rmse_m": round(rmse, 4) if rmse is not None else None,

@@ -145,7 +145,7 @@ GEOREF = StepSpec(
 
 # --------------------------------------------------------------------------------------------------- dense
 DENSE = StepSpec(
-    name="dense", title="Dense surface", version=5,
+    name="dense", title="Dense surface", version=6,
     description="Dense point cloud, DSM and orthophoto on the CPU (docs/dense.md).",
     function="georef_core.steps.dense:step_entry", depends_on=("georef",), heavy=True, site_data=("crs",),
     # spatial tiles that workers run in parallel (steps/dense_tiles.py; docs/dense.md "Large surveys")
@@ -364,7 +364,8 @@ DATUM = StepSpec(
     inputs=("gcp/", "survey.json", "calibration/"), site_data=("crs", "vertical"),
     options=(
         Option("vertical_datum", "string", None, "heights in this datum (default: the site's vertical datum): "
-               "egm96, egm2008 (where its grid is installed) or an EPSG vertical CRS code such as EPSG:5773"),
+               "egm96, egm2008 (where its grid is installed), jgd2011 (Japan, GSIGEO2011) or an EPSG vertical CRS "
+               "code such as EPSG:5773"),
         Option("node_step_m", "number", 10.0, "the height change is computed by PROJ at nodes this far apart and "
                "interpolated bilinearly in between", minimum=0.5, maximum=1000.0, unit="m", advanced=True),
         Option("point_cloud", "boolean", True, "also convert the point cloud", advanced=True),

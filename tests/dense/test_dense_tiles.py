@@ -247,8 +247,8 @@ def test_block_radiometry_is_solved_once_for_every_tile(tiled_run, dense_sim):
 def test_readers_get_only_the_part_files_they_read(tiled_run):
     """On the platform a reader of parts' files is given only those it declared (the merge: the Split's
     merge_reads; a second-phase part: its descriptor's "reads"): the fixture ran every such reader in a folder
-    holding only those, so its success shows they suffice; here, that the depth maps stayed out of the merge and
-    of the radiometry part, and that a tile got only its own images' maps."""
+    holding only those, so its success shows they suffice; here, that the depth maps stayed out of the merge, that
+    the radiometry part got the fine maps only, and that a tile got only its own images' maps."""
     from georef_core.steps.contract import get_spec
 
     out, summary, parts = tiled_run[:3]
@@ -258,7 +258,9 @@ def test_readers_get_only_the_part_files_they_read(tiled_run):
     maps = [n for n in given["merge"][2] if "/depth/" in n]
     assert not maps and any(n.endswith("core_rasters.npz") for n in given["merge"][2])   # no depth map sent
     rad = next(p for p in parts if p["phase"] == "radiometry")
-    assert not [n for n in given[rad["index"]][2] if "/depth/" in n]
+    # the radiometry part: the fine maps only (its occlusion test), never the coarse ones
+    rad_maps = {n.rsplit("/", 1)[-1] for n in given[rad["index"]][2] if "/depth/" in n}
+    assert rad_maps == {f"{stem}.npy" for _, stem in rad["depth"].values()}
     assert sum(n.endswith("radiometry_obs.npz") for n in given[rad["index"]][2]) == len(rad["after"])
     for p in parts:
         if p["phase"] == "fuse":   # a tile: its images' and their neighbours' maps, the block's radiometry
