@@ -8,13 +8,17 @@ where the carrier-phase judge (phase_consistency.anchored_rms_m: signals unbroke
 Step model, per pair of epochs (e, e+1) and system: the rover phase minus the broadcast model at one position
 p (the rough position of epoch e, for both epochs), differenced in time, is -los . dx + a clock change per
 system; least squares for dx with the worst signal beyond 3 cm dropped and the fit repeated; a step with fewer
-than (3 + systems + 2) signals, or a post-fit RMS over 2 cm, breaks the chain.
+than (3 + systems + 2) signals, or a post-fit RMS over 2 cm, breaks the chain. Only signals above the
+configuration's elevation mask (pos1-elmask) are used: the walk's horizon satellites (0-5 degrees, which the
+filter never uses) have a steady 6-25 mm/s time-differenced residual, below the 3 cm outlier test, that made
+the chain drift ~3 mm per step. A step that breaks is tried again with one clock change for all systems (the
+inter-system bias barely changes in a second), which needs one signal less.
 
 Checked first between anchors (the chain from one anchor predicting another: error against length), then
 applied to the walk's disputed stretches: our fixes and demo5's, each compared with the position chained from the
 nearest anchor before and after (docs/gnss.md, "TDCP chain").
 
-    GEOREF_SHARED_DATA=/work/shared python bench/gnss_tdcp_chain.py
+    GEOREF_SHARED_DATA=/work/shared python bench/gnss_tdcp_chain.py [--doppler] [--all-elevations] [--two-clocks]
 """
 
 from __future__ import annotations
@@ -38,9 +42,11 @@ from tests.gnss.solution_compare import pos_ecef_m
 
 OUTLIER_M = 0.03
 MAX_STEP_RMS_M = 0.02
+MIN_ELEVATION_DEG = 15.0
 
 
-def tdcp_steps(arrays, rough_ecef_m, single_difference: bool = True):
+def tdcp_steps(arrays, rough_ecef_m, single_difference: bool = True, min_elevation_deg: float = MIN_ELEVATION_DEG,
+               one_clock: bool = False):
     """Displacement (E-1, 3) from each epoch to the next (NaN where the step breaks), post-fit RMS (E-1,) and
     the number of signals used (E-1,). Band 0 only. single_difference: the base's phase residuals (interpolated
     and extrapolated across base gaps, base_alignment.py) are subtracted, which removes the ionosphere's and
@@ -50,8 +56,9 @@ def tdcp_steps(arrays, rough_ecef_m, single_difference: bool = True):
     if single_difference:
         phase = phase - arrays.base_phase_res_m[:, :, 0]
     usable = np.isfinite(phase) & np.isfinite(arrays.rover_code_m[:, :, 0]) & (np.abs(arrays.sat_pos).sum(axis=2) > 0)
+    usable &= arrays.el >= np.radians(min_elevation_deg)
     slip = arrays.slip_cum[:, :, 0]
-    sys_code = arrays.sys_code
+    sys_code = np.zeros_like(arrays.sys_code) if one_clock else arrays.sys_code
     n_sys = int(sys_code.max()) + 1
     dx = np.full((n_e - 1, 3), np.nan)
     rms = np.full(n_e - 1, np.nan)
@@ -148,15 +155,37 @@ def main():
         f0, b0 = passes()
         demo5, demo5_status = on_epochs(read_pos(ref), data.time_s)
         rough = np.where(np.isfinite(f0.float_position_ecef_m), f0.float_position_ecef_m, data.spp_position_ecef_m)
-        dx, rms, n_used = tdcp_steps(arrays, rough)
+        mask_deg = -90.0 if "--all-elevations" in sys.argv else opts.elevation_mask_deg
+        dx, rms, n_used = tdcp_steps(arrays, rough, min_elevation_deg=mask_deg)
+        # where a step breaks (too few signals for a clock change per system): one clock change for all
+        # systems (the receiver's inter-system bias barely changes in a second)
+        dx1, rms1, n1 = tdcp_steps(arrays, rough, min_elevation_deg=mask_deg, one_clock=True)
+        one = ~np.isfinite(dx[:, 0]) & np.isfinite(dx1[:, 0])
+        if "--two-clocks" not in sys.argv:
+            dx[one], rms[one], n_used[one] = dx1[one], rms1[one], n1[one]
+        else:
+            one[:] = False
         ok_steps = np.isfinite(dx[:, 0])
+        tdcp_only = dx.copy()
         if "--doppler" in sys.argv:
             dx, bridged = bridge_with_doppler(dx, data.time_s, spp.velocity_ecef_m_s)
         else:
             bridged = np.zeros(len(dx), bool)
-        print(f"\n== {ds} {name}: TDCP steps {ok_steps.sum()} of {len(dx)} (median RMS {np.nanmedian(rms)*1e3:.1f} mm, "
-              f"median signals {np.median(n_used[ok_steps]):.0f}); Doppler-bridged steps {bridged.sum()} at GPST "
-              f"{[int(t) for t in data.time_s[:-1][bridged]]}")
+        print(f"\n== {ds} {name}: elevation mask {mask_deg:.0f} deg; TDCP steps {ok_steps.sum()} of {len(dx)} "
+              f"(one clock: {one.sum()} at GPST {[int(t) % 10000 for t in data.time_s[:-1][one]]}; median RMS "
+              f"{np.nanmedian(rms)*1e3:.1f} mm, median signals {np.median(n_used[ok_steps]):.0f}); Doppler-bridged "
+              f"steps {bridged.sum()} at GPST {[int(t) % 10000 for t in data.time_s[:-1][bridged]]}")
+        if "--doppler" in sys.argv:
+            # the Doppler bridge's own error: the integrated velocity against the TDCP steps, summed over k
+            # consecutive steps (where all k have a TDCP step)
+            vdx, _ = bridge_with_doppler(np.full_like(tdcp_only, np.nan), data.time_s, spp.velocity_ecef_m_s)
+            diff = vdx - tdcp_only
+            for k in (1, 2, 3, 5, 10, 20):
+                win = np.array([diff[i:i + k].sum(axis=0) for i in range(len(diff) - k + 1)])
+                win = np.linalg.norm(win[np.isfinite(win).all(axis=1)], axis=1)
+                print(f"  Doppler bridge against TDCP over {k} consecutive steps: n {len(win)}, error median "
+                      f"{np.median(win)*1e3:.0f} mm, 95 % {np.percentile(win, 95)*1e3:.0f} mm, "
+                      f"max {win.max()*1e3:.0f} mm")
         # anchors: epochs where demo5's combined fix and one of our passes (as configured) fix within 2 cm
         anchor = np.zeros(len(data.time_s), bool)
         for out in (f0, b0):
@@ -170,18 +199,23 @@ def main():
         errs = []
         cum = np.vstack([np.zeros(3), np.cumsum(np.nan_to_num(dx), axis=0)])
         broken = np.concatenate([[0], np.cumsum(~np.isfinite(dx[:, 0]))])
+        n_bridged = np.concatenate([[0], np.cumsum(bridged)])
         for i in a_idx:
             for j in a_idx[a_idx > i]:
                 if broken[j] - broken[i]:
                     break
-                errs.append((j - i, np.linalg.norm(a_pos[i] + (cum[j] - cum[i]) - a_pos[j])))
+                errs.append((j - i, np.linalg.norm(a_pos[i] + (cum[j] - cum[i]) - a_pos[j]),
+                             n_bridged[j] - n_bridged[i]))
         errs = np.array(errs)
-        for lo, hi in ((1, 2), (2, 10), (10, 50), (50, 100), (100, 200), (200, 400)):
-            m = (errs[:, 0] >= lo) & (errs[:, 0] < hi) if len(errs) else np.zeros(0, bool)
-            if m.any():
-                print(f"  anchor from anchor over {lo}-{hi - 1} steps: n {m.sum()}, error median "
-                      f"{np.median(errs[m, 1])*1e3:.0f} mm, 95 % {np.percentile(errs[m, 1], 95)*1e3:.0f} mm, "
-                      f"max {errs[m, 1].max()*1e3:.0f} mm")
+        for lab, sel in (("TDCP only", 0), ("with Doppler-bridged steps", 1)):
+            for lo, hi in ((1, 2), (2, 10), (10, 50), (50, 100), (100, 200), (200, 400), (400, 800)):
+                m = ((errs[:, 0] >= lo) & (errs[:, 0] < hi) & ((errs[:, 2] > 0) == sel)
+                     if len(errs) else np.zeros(0, bool))
+                if m.any():
+                    print(f"  anchor from anchor over {lo}-{hi - 1} steps, {lab}: n {m.sum()}, error median "
+                          f"{np.median(errs[m, 1])*1e3:.0f} mm, 95 % {np.percentile(errs[m, 1], 95)*1e3:.0f} mm, "
+                          f"max {errs[m, 1].max()*1e3:.0f} mm" + (f", bridged steps {int(errs[m, 2].min())}-"
+                                                                 f"{int(errs[m, 2].max())}" if sel else ""))
         # every fixed epoch of each candidate that is not an anchor: distance to the chained positions
         for lab, pos, st in (("ours F", f0.position_ecef_m, f0.status), ("ours B", b0.position_ecef_m, b0.status),
                              ("demo5 C", demo5, demo5_status)):
@@ -213,8 +247,9 @@ def main():
                                  ("demo5", demo5, demo5_status)):
                 if st[e] != 1:
                     continue
-                parts = [f"{np.linalg.norm(pos[e] - p):.2f} m/{n}" if p is not None else f"-/{n}"
-                         for p, n in chained(dx, a_idx, a_pos, e)]
+                (pb, nb), (pa, na) = chained(dx, a_idx, a_pos, e)
+                parts = [f"{np.linalg.norm(pos[e] - p):.2f} m/{n} ({int(nbr)} bridged)" if p is not None else f"-/{n}"
+                         for p, n, nbr in ((pb, nb, bridged[e - nb:e].sum()), (pa, na, bridged[e:e + na].sum()))]
                 row += f" | {lab} fixed: chain before {parts[0]}, after {parts[1]}"
             print(row)
 
