@@ -325,8 +325,9 @@ def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = N
     skipped: dict[str, str] = dict(data.notes)
     s = data.surface
     cs = None
-    manifest: dict = {"run_dir": str(run_dir), "surface": data.surface_name if s else None,
-                      "surface_file": str(s.path) if s else None}
+    # no server paths in what a client downloads: the run folder by name, the surface relative to it
+    manifest: dict = {"run_dir": run_dir.name, "surface": data.surface_name if s else None,
+                      "surface_file": _relative_name(s.path, run_dir) if s else None}
     if s is not None and any(f in formats for f in ("geojson", "dxf", "gpkg", "shp")):
         cs = trace_contours(s, interval_m, index_every, smoothing_m)
         manifest["contours"] = cs.summary()
@@ -404,8 +405,37 @@ def export_run(run_dir, out_dir=None, formats=None, interval_m: float | None = N
         progress("exports", steps, steps)
     manifest.update({"crs": s.crs_label() if s else None, "vertical_datum": vd, "written": written,
                      "skipped": skipped})
+    manifest = _without_run_path(manifest, run_dir)
     (out / "exports.json").write_text(json.dumps(manifest, indent=1, default=_jsonable))
     return manifest
+
+
+def _without_run_path(obj, run_dir: Path):
+    """``obj`` (the manifest: dicts, lists, strings) with the run folder's own path taken out of every text, so
+    that paths read relative to the run folder: the manifest reaches clients (API, browser), which must not see
+    the server's folders."""
+    prefixes = sorted({str(run_dir.resolve()) + "/", str(run_dir) + "/"}, key=len, reverse=True)
+
+    def clean(v):
+        if isinstance(v, str):
+            for pre in prefixes:
+                v = v.replace(pre, "")
+            return v
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+
+    return clean(obj)
+
+
+def _relative_name(path, run_dir: Path) -> str:
+    """``path`` relative to the run folder where it lies inside it, else its file name (never an absolute path)."""
+    try:
+        return Path(path).resolve().relative_to(run_dir.resolve()).as_posix()
+    except ValueError:
+        return Path(path).name
 
 
 def _jsonable(v):

@@ -134,7 +134,10 @@ def test_export_says_what_it_skipped(tmp_path):
     with rasterio.open(run / "dtm" / "dtm.tif", "r+") as ds:
         ds.write(ds.read(1) - 0.5, 1)
     m2 = export_run(run, formats=["gpkg"], interval_m=1.0, surface="dtm")
-    assert m2["surface"] == "DTM" and m2["surface_file"].endswith("dtm.tif")
+    assert m2["surface"] == "DTM" and m2["surface_file"] == "dtm/dtm.tif"
+    # no server path in the manifest a client downloads
+    manifest_text = (run / "exports" / "exports.json").read_text()
+    assert str(run.resolve()) not in manifest_text and str(run) not in manifest_text, manifest_text
     with pytest.raises(Exception, match="unknown export format"):
         export_run(run, formats=["pdf"])
 
