@@ -92,6 +92,9 @@ def main() -> int:
     ap.add_argument("--flight-offset-sigma", help="H,V (m): forwarded to georef --flight-offset-sigma (the per-flight "
                     "offsets' prior; default the step's 1 cm / 1.5 cm)")
     ap.add_argument("--cases", default="ppk,rtk,zeroed", help="which cases to run: ppk, rtk, zeroed (comma-separated)")
+    ap.add_argument("--control", default="none",
+                    help="forwarded to georef --control: 'none' (default, every target a check point) or the names of "
+                         "the control points (e.g. one target: what a focal length left at its prior needs)")
     a = ap.parse_args()
     modes = [m.strip() for m in a.flight_offsets.split(",") if m.strip()] or [None]
     wanted = {c.strip() for c in a.cases.split(",") if c.strip()}
@@ -122,7 +125,7 @@ def main() -> int:
             out.mkdir(parents=True, exist_ok=True)
             shutil.copytree(first_out / "sfm", out / "sfm", dirs_exist_ok=True)
         t0 = time.perf_counter()
-        rc = georef(["georef", str(site), "--out", str(out), "--control", "none", "--no-leave-one-out"]
+        rc = georef(["georef", str(site), "--out", str(out), "--control", a.control, "--no-leave-one-out"]
                     + (["--flight-offsets", mode] if mode else [])
                     + (["--flight-offset-sigma", a.flight_offset_sigma] if a.flight_offset_sigma else []))
         dt = time.perf_counter() - t0
