@@ -135,22 +135,27 @@ def ensure_packaged_egm2008() -> Path | None:
     """The packaged EGM2008 grid as a PROJ grid (egm08_25.gtx in grid_cache_dir()), written on first need and
     again when the package's file changes; None without the package. An error (disk full, unreadable package
     file) names the file."""
+    src = packaged_egm2008_source()
+    return _cached_grid(src, EGM2008_GTX, lambda out: write_gtx_from_netcdf(src, out),
+                        "the EGM2008 grid converted") if src is not None else None
+
+
+def _cached_grid(src: Path, name: str, write, what: str) -> Path:
+    """``grid_cache_dir() / name``, written by ``write(out)`` from the package file ``src`` on first need and again
+    when that file changes (a ``.source`` stamp beside it); an error writing it names the file."""
     from ..errors import InputFileError
 
-    src = packaged_egm2008_source()
-    if src is None:
-        return None
-    out = grid_cache_dir() / EGM2008_GTX
+    out = grid_cache_dir() / name
     stamp_file = out.with_suffix(".source")
     stamp = _stamp(src)
     if out.is_file() and stamp_file.is_file() and stamp_file.read_text() == stamp:
         return out
     try:
-        write_gtx_from_netcdf(src, out)
+        write(out)
         stamp_file.write_text(stamp)
     except OSError as exc:
-        raise InputFileError(out, f"cannot write the EGM2008 grid converted from {src} ({exc}); set "
-                                  f"${GRID_CACHE_ENV} to a writable folder") from None
+        raise InputFileError(out, f"cannot write {what} from {src} ({exc}); set ${GRID_CACHE_ENV} to a writable "
+                                  "folder") from None
     return out
 
 
@@ -224,23 +229,9 @@ def packaged_gsigeo2011_source() -> Path | None:
 def ensure_packaged_gsigeo2011() -> Path | None:
     """The packaged GSIGEO2011 grid as a PROJ grid (jp_gsi_gsigeo2011.tif in grid_cache_dir()), written on first
     need and again when the package changes; None without the package."""
-    from ..errors import InputFileError
-
     src = packaged_gsigeo2011_source()
-    if src is None:
-        return None
-    out = grid_cache_dir() / GSIGEO2011_TIF
-    stamp_file = out.with_suffix(".source")
-    stamp = _stamp(src)
-    if out.is_file() and stamp_file.is_file() and stamp_file.read_text() == stamp:
-        return out
-    try:
-        write_gsigeo2011_tif(out)
-        stamp_file.write_text(stamp)
-    except OSError as exc:
-        raise InputFileError(out, f"cannot write the GSIGEO2011 grid decoded from {src} ({exc}); set "
-                                  f"${GRID_CACHE_ENV} to a writable folder") from None
-    return out
+    return _cached_grid(src, GSIGEO2011_TIF, write_gsigeo2011_tif,
+                        "the GSIGEO2011 grid decoded") if src is not None else None
 
 
 def decode_gsi_binary(blob: bytes):
