@@ -89,6 +89,11 @@ class _Timer:
         return _Ctx()
 
 
+def depth_grid(view, opts: "DenseOptions"):
+    """The pinhole grid a view's depth map is computed on: the view at 1 / depth_map_downscale of its matching size."""
+    return view.scaled(1.0 / opts.depth_map_downscale) if opts.depth_map_downscale != 1 else view
+
+
 def _nice(x: float) -> float:
     """Round a resolution to 5 mm (1 mm below 2 cm)."""
     step = 0.005 if x >= 0.02 else 0.001
@@ -221,7 +226,7 @@ def _run_dense(out_dir, options: DenseOptions | None, progress: ProgressFn | Non
             if not oriented.image_path(im).is_file():
                 raise InputFileError(oriented.image_path(im), f"image of {oriented_path.name} not found")
         views = views_from_oriented(oriented, opts.max_image_size, source=oriented_path)
-        grids = [v.scaled(1.0 / opts.depth_map_downscale) if opts.depth_map_downscale != 1 else v for v in views]
+        grids = [depth_grid(v, opts) for v in views]
     frame = oriented.frame
     dense_dir = out_dir / DENSE_DIR
     dense_dir.mkdir(parents=True, exist_ok=True)
@@ -524,7 +529,7 @@ def _run_depth_maps(oriented_path: Path, references, sources, prior, file_stem, 
     index = {v.name: k for k, v in enumerate(views)}
     pv = [ViewDepth(*[float(x) for x in prior[v.name][:4]], int(prior[v.name][4])) for v in views]
     views = [replace(v, scene_depth_m=pv[k].depth_med_m) if v.rolling_shutter else v for k, v in enumerate(views)]
-    grids = [v.scaled(1.0 / opts.depth_map_downscale) if opts.depth_map_downscale != 1 else v for v in views]
+    grids = [depth_grid(v, opts) for v in views]
     block_prior = SparsePrior(np.zeros((0, 3)), pv, "the block's")
     src = [[StereoPair(**dict(p, ref=k, src=index[p["src"]])) for p in sources.get(v.name, [])]
            if v.name in set(references) else [] for k, v in enumerate(views)]

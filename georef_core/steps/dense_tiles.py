@@ -427,6 +427,7 @@ def _depth_map_reader(workspace, opts, part: dict):
         return None
     from ..dense.camera_views import views_from_oriented
     from ..photo.oriented_images import read_oriented_images
+    from .dense import depth_grid
 
     path = _oriented_path(workspace, opts)
     oriented = read_oriented_images(path)
@@ -442,9 +443,7 @@ def _depth_map_reader(workspace, opts, part: dict):
         d = np.load(f)
         if d.ndim != 2:
             raise ProcessingError(f"orthophoto radiometry: depth map {f} is not a 2-D array (shape {d.shape})")
-        v = views[name]
-        if opts.depth_map_downscale != 1:
-            v = v.scaled(1.0 / opts.depth_map_downscale)
+        v = depth_grid(views[name], opts)
         if (v.height, v.width) != d.shape:   # the grid the map was computed on (same view, its size)
             v = v.scaled_to(d.shape[1], d.shape[0])
         return v, d
